@@ -1,0 +1,97 @@
+/// @file form_factor.h
+/// Closed forms for the form factor from a differential receiver area to a polygonal light.
+///
+/// Conventions (world space, scene units):
+/// - A receiver is a point M with unit normal n. Vectors `c` passed to the edge functions are
+///   relative to M (c = C - M).
+/// - A polygon is oriented counterclockwise in the light's (u, v) parameter plane, i.e. in the
+///   order corner, corner + edgeU, corner + edgeU + edgeV, corner + edgeV. Seen from the emitting
+///   side (the side of edgeU x edgeV), that order is counterclockwise, and the form factor of such
+///   a loop is positive. Reversing an edge negates its G vector exactly, so shared edges cancel.
+/// - F = G . n with G = (1 / 2 pi) sum_i beta_i n_i   (Vedel 1993, eq. 4-7), where beta_i is the
+///   angle between c_i and c_{i+1} and n_i the unit normal of the plane (M, C_i, C_{i+1}).
+/// All functions are pure and thread-safe.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "penumbra/math.h"
+
+namespace penumbra {
+
+/// A point on a receiving surface: position and unit normal, world space.
+struct Receiver {
+    Vec3 point;
+    Vec3 normal;
+};
+
+/// A rectangular diffuse light emitting on the side of edgeU x edgeV (right-hand rule).
+struct RectLight {
+    std::string name;
+    Vec3 corner{0.0};
+    Vec3 edgeU{1.0, 0.0, 0.0};
+    Vec3 edgeV{0.0, 1.0, 0.0};
+    Rgb radiance{1.0};
+
+    Vec3 point(double u, double v) const { return corner + u * edgeU + v * edgeV; }
+    Vec3 normal() const { return glm::normalize(glm::cross(edgeU, edgeV)); }
+    double area() const { return glm::length(glm::cross(edgeU, edgeV)); }
+    /// The four corners in the counterclockwise (u, v) order.
+    std::vector<Vec3> polygon() const {
+        return {corner, corner + edgeU, corner + edgeU + edgeV, corner + edgeV};
+    }
+};
+
+/// beta n_hat for the directed edge c0 -> c1 (both relative to M), without the 1/(2 pi) factor,
+/// signed so that a counterclockwise loop (see file comment) gives a positive form factor.
+/// Returns zero for degenerate edges (a zero vector, or c0 and c1 collinear with M).
+Vec3 edgeG(const Vec3& c0, const Vec3& c1);
+
+/// edgeG and its Jacobian with respect to the receiver position M when the edge's end points
+/// stay fixed in space: dG.col(k) = d edgeG / d M_k. Smooth through the degenerate
+/// (collinear) configuration, where the value is zero but the derivative is not; this is what
+/// the radial "junction" edges of Fig. 5 need. (Vedel 1993, appendix eq. 8-10, in a form that
+/// does not divide by |c0 x c1|.)
+struct EdgeDerivative {
+    Vec3 g{0.0};
+    Mat3 dg{0.0};
+};
+EdgeDerivative edgeGWithDerivative(const Vec3& c0, const Vec3& c1);
+
+/// Lambert's formula (Vedel 1993, eq. 4) for a closed polygon given in world space, oriented as
+/// in the file comment. The polygon must lie on or above M's tangent plane; use clipToHorizon
+/// first otherwise.
+double polygonFormFactor(const std::vector<Vec3>& polygonWS, const Receiver& r);
+
+/// G vector (already divided by 2 pi) of a closed world-space polygon: F = G . n.
+Vec3 polygonG(const std::vector<Vec3>& polygonWS, const Vec3& m);
+
+/// The part of a convex or concave planar polygon on the receiver's side of its tangent plane
+/// ((P - M) . n >= 0), by Sutherland-Hodgman; keeps the orientation. May return fewer than 3
+/// vertices (nothing above the horizon).
+std::vector<Vec3> clipToHorizon(const std::vector<Vec3>& polygonWS, const Receiver& r);
+
+/// Unoccluded form factor from (M, n) to the light, clipped by the tangent plane; zero when M is
+/// behind the light (on the non-emitting side) or the light is wholly below the horizon.
+double unoccludedFormFactor(const RectLight& light, const Receiver& r);
+
+/// Unoccluded G (F = G . n) and its Jacobian with respect to M (n fixed), for the clipped
+/// light. The clipped vertices are held fixed: their sliding only changes F to second order
+/// because the cosine weight vanishes on the horizon.
+struct GWithDerivative {
+    Vec3 g{0.0};
+    Mat3 dg{0.0};
+};
+GWithDerivative unoccludedG(const RectLight& light, const Receiver& r);
+
+/// Form factor of a strip of width `width` around the segment p0-p1 on the light, by the
+/// elementary (differential area) form factor at the segment's midpoint: the uncertainty of a
+/// contour segment whose end points are known to within `width` (Vedel 1993, section 3.2).
+double stripFormFactor(const Receiver& r, const Vec3& lightNormal, const Vec3& p0, const Vec3& p1,
+                       double width);
+
+/// True when M lies strictly on the emitting side of the light's plane.
+bool facesLight(const RectLight& light, const Vec3& m);
+
+}  // namespace penumbra

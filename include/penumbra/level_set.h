@@ -1,0 +1,52 @@
+/// @file level_set.h
+/// Narrow-band level-set grids (openvdb::FloatGrid) behind an opaque handle, so that most
+/// translation units never include OpenVDB. The grid type itself is visible only to code that
+/// includes the internal header src/level_set_impl.h.
+///
+/// Units: world space, scene units; the grid's own transform maps index to world space.
+/// Thread safety: a LevelSet is immutable after creation and may be shared between threads.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "penumbra/math.h"
+
+namespace penumbra {
+
+class LevelSet;  // wraps openvdb::FloatGrid::ConstPtr; see src/level_set_impl.h
+using LevelSetPtr = std::shared_ptr<const LevelSet>;
+
+/// What a user (and the statistics) may want to know about a level set.
+struct LevelSetInfo {
+    std::string name;
+    double voxelSize = 0.0;     ///< world units
+    double halfWidth = 0.0;     ///< narrow-band half width, in voxels
+    Box3 boundsWS;              ///< world-space bounds of the active voxels
+    uint64_t activeVoxels = 0;
+    uint64_t bytes = 0;         ///< in-memory size of the tree
+};
+LevelSetInfo describe(const LevelSet& ls);
+
+/// Sphere level set built with OpenVDB's createLevelSetSphere.
+LevelSetPtr makeSphereLevelSet(const Vec3& center, double radius, double voxelSize,
+                               double halfWidthVoxels, const std::string& name = "sphere");
+
+/// Axis-aligned box level set (OpenVDB's createLevelSetBox).
+LevelSetPtr makeBoxLevelSet(const Vec3& lo, const Vec3& hi, double voxelSize,
+                            double halfWidthVoxels, const std::string& name = "box");
+
+/// Reads level-set grids from a .vdb file: the grid named `gridName`, or every level-set grid
+/// when `gridName` is empty. Throws InputError naming `file` and `where` (the JSON path of the
+/// obstacle) when the file is missing or unreadable, the grid is absent, is not a float level
+/// set (fog volumes, vectors), or has non-uniform voxels. Half-float grids are accepted.
+std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::string& gridName,
+                                       const std::string& where = "");
+
+/// Writes level sets as named grids to a .vdb file (atomically: temporary name, then rename).
+void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids);
+
+}  // namespace penumbra

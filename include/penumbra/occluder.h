@@ -1,0 +1,85 @@
+/// @file occluder.h
+/// Boolean visibility between two world-space points against a set of obstacles: OpenVDB
+/// level sets (ray-marched with openvdb::tools::LevelSetRayIntersector) and, for tests that must
+/// separate the estimator's error from voxelization, exact analytic spheres and boxes.
+///
+/// Thread safety: an Occluder is immutable once built; each thread calls makeQuery() once and
+/// uses its own Query (it holds OpenVDB value accessors, which must not be shared).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <variant>
+#include <vector>
+
+#include "penumbra/level_set.h"
+#include "penumbra/math.h"
+
+namespace penumbra {
+
+struct AnalyticSphere {
+    Vec3 center{0.0};
+    double radius = 1.0;
+};
+
+struct AnalyticBox {  // axis-aligned
+    Vec3 lo{-0.5};
+    Vec3 hi{0.5};
+};
+
+using ObstacleShape = std::variant<AnalyticSphere, AnalyticBox, LevelSetPtr>;
+
+class Occluder {
+public:
+    Occluder() = default;
+    explicit Occluder(std::vector<ObstacleShape> shapes);
+
+    void add(ObstacleShape shape);
+    size_t size() const { return mShapes.size(); }
+    const ObstacleShape& shape(size_t i) const { return mShapes[i]; }
+    /// World-space bounds of obstacle i (level sets: active voxels, padded by one voxel).
+    const Box3& bounds(size_t i) const { return mBounds[i]; }
+    /// Smallest voxel size over the level sets, 0 when there are none.
+    double minVoxelSize() const { return mMinVoxel; }
+
+    class Query;
+    Query makeQuery() const;
+
+private:
+    std::vector<ObstacleShape> mShapes;
+    std::vector<Box3> mBounds;
+    double mMinVoxel = 0.0;
+};
+
+/// Per-thread visibility query. Counts the segment queries it answers (shadow rays).
+class Occluder::Query {
+public:
+    explicit Query(const Occluder& occluder);
+    Query(const Query&);
+    Query& operator=(const Query&) = delete;
+    Query(Query&&) noexcept;
+    ~Query();
+
+    /// True when an obstacle blocks the open segment from `from` to `to` (the end points
+    /// themselves excluded; callers start rays off the surface). When hidden and `tHit` is not
+    /// null, *tHit is the distance from `from` to the nearest hit point. Grazing rays that touch
+    /// the surface count as hits.
+    bool occluded(const Vec3& from, const Vec3& to, double* tHit = nullptr);
+
+    /// Restricts the following queries to the obstacles listed (indices into the Occluder), e.g.
+    /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its
+    /// use.
+    void restrictTo(const std::vector<uint32_t>* candidates) { mCandidates = candidates; }
+
+    uint64_t raysCast() const { return mRays; }
+    void resetCount() { mRays = 0; }
+
+private:
+    struct Impl;
+    const Occluder* mOccluder;
+    std::unique_ptr<Impl> mImpl;  // the per-thread OpenVDB intersectors
+    const std::vector<uint32_t>* mCandidates = nullptr;
+    uint64_t mRays = 0;
+};
+
+}  // namespace penumbra

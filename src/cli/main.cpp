@@ -1,0 +1,35 @@
+// penumbra: direct illumination from area lights over OpenVDB level sets by approximate
+// contour integration. This file only dispatches to the subcommands and maps errors to exit
+// codes: 2 for bad input (one line naming the file and field), 1 for runtime failures.
+#include <iostream>
+#include <map>
+#include <string>
+
+#include "cli/commands.h"
+#include "penumbra/error.h"
+
+int main(int argc, char** argv) {
+    CLI::App app{"penumbra: soft shadows from area lights over OpenVDB level sets, by approximate "
+                 "contour integration (Vedel 1993)"};
+    app.require_subcommand(1);
+    app.set_version_flag("--version", "penumbra 0.1.0");
+    std::map<std::string, penumbra::cli::Runner> runners;
+    runners["probe"] = penumbra::cli::addProbeCommand(app);
+    runners["render"] = penumbra::cli::addRenderCommand(app);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError& e) {
+        int code = app.exit(e);
+        return code == 0 ? 0 : 2;
+    }
+    try {
+        for (auto* sub : app.get_subcommands()) return runners.at(sub->get_name())();
+    } catch (const penumbra::InputError& e) {
+        std::cerr << "penumbra: error: " << e.what() << "\n";
+        return 2;
+    } catch (const std::exception& e) {
+        std::cerr << "penumbra: error: " << e.what() << "\n";
+        return 1;
+    }
+    return 0;
+}
