@@ -25,6 +25,10 @@
 
 namespace penumbra {
 
+/// Largest lattice resolution (grid << (steps + 1)) an evaluation uses; larger settings are
+/// reduced by taking fewer dichotomy steps. At the limit the lattice takes 4097^2 x 8 bytes.
+constexpr int kMaxLatticeUnits = 4096;
+
 struct AciSettings {
     int grid = 2;         ///< p = q: squares per light edge at the first level (paper: 2)
     int steps = 5;        ///< dichotomy steps n along a crossed side (paper: 5)
@@ -33,6 +37,9 @@ struct AciSettings {
     bool refine = true;   ///< section 3.2 check-and-refine; off gives the plain contour
     bool gradient = true; ///< compute the gradient from the 3D contour points (section 4)
     uint32_t seed = 0;    ///< picks the diagonal of case-3 squares (deterministic per square)
+    /// When set, every traced shadow ray's target is appended (tests use it to prove that no
+    /// ray is traced twice).
+    std::vector<Vec3>* rayLog = nullptr;
 };
 
 struct AciCounts {

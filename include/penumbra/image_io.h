@@ -1,0 +1,64 @@
+/// @file image_io.h
+/// Float images in memory and their files, through OpenImageIO. The format follows the file's
+/// extension: `.exr` stores linear float values as they are (32-bit float); `.png` stores 8-bit
+/// sRGB-encoded values of the linear values clamped to [0, 1] (an alpha channel, the 4th, stays
+/// linear). Files are written to a temporary name in the same directory and renamed when complete,
+/// so a reader never sees a partial image and a failed write leaves no file behind.
+///
+/// Pixel (0, 0) is the top-left corner; channels are interleaved, rows top to bottom.
+/// Thread safety: free functions, safe to call concurrently on different files.
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace penumbra {
+
+struct Image {
+    int width = 0;
+    int height = 0;
+    int channels = 0;
+    std::vector<float> data;  ///< width * height * channels values, interleaved
+
+    Image() = default;
+    Image(int w, int h, int c, float fill = 0.0f)
+        : width(w), height(h), channels(c), data(size_t(w) * size_t(h) * size_t(c), fill) {}
+
+    float& at(int x, int y, int c = 0) { return data[(size_t(y) * width + x) * channels + c]; }
+    float at(int x, int y, int c = 0) const {
+        return data[(size_t(y) * width + x) * channels + c];
+    }
+};
+
+/// Key / value pairs stored in the file's metadata (EXR header attributes, PNG text chunks).
+using ImageMetadata = std::vector<std::pair<std::string, std::string>>;
+
+enum class ImageFormat { Exr, Png };
+
+/// The format for `path` from its extension (case-insensitive). Throws InputError whose `where`
+/// is `flag` (the command-line option that named the file, e.g. "-o") for any other extension.
+ImageFormat imageFormatFor(const std::string& path, const std::string& flag = "-o");
+
+/// Writes `image` (1, 3 or 4 channels) to `path`, atomically. Throws InputError (see
+/// imageFormatFor) for an unknown extension and std::runtime_error when the file cannot be
+/// written; in both cases no file is left at `path` or at the temporary name.
+void writeImage(const std::string& path, const Image& image, const ImageMetadata& metadata = {},
+                const std::string& flag = "-o");
+
+/// Reads an image as linear float values (PNG values are decoded from sRGB, alpha kept).
+/// Throws std::runtime_error when the file cannot be read.
+Image readImage(const std::string& path);
+
+/// Reads one metadata attribute of an image file as a string ("" when absent).
+std::string readImageAttribute(const std::string& path, const std::string& name);
+
+/// sRGB transfer functions (IEC 61966-2-1), on values clamped to [0, 1].
+float linearToSrgb(float linear);
+float srgbToLinear(float encoded);
+
+/// A 3-channel false-colour picture of a 1-channel image: 0 is black, then blue, red, yellow,
+/// and `maxValue` (and above) is white. NaN maps to magenta. For AOVs (rays per pixel).
+Image heatMap(const Image& scalar, float maxValue);
+
+}  // namespace penumbra

@@ -1,0 +1,112 @@
+/// @file renderer.h
+/// Renders a Scene seen through its Camera: one viewing ray per pixel, Lambertian receivers
+/// (analytic planes and the obstacles themselves, shaded with their own normals), every
+/// rectangular light. A pixel's value is albedo x sum over lights of radiance x F, with F the
+/// form factor from the hit point to the light (Vedel 1993, eq. 4), shadowed by the obstacles.
+///
+/// Methods (keep `Method` open: more estimators plug in behind the same front end):
+/// - `Method::Aci` is the pipeline of Vedel 1993, section 5: the viewing rays of a scanline are
+///   cut into spans of adjacent pixels on one object; each span is shaft-culled against each
+///   light (Haines and Wallace 1991); a span without candidate obstacle is shaded by the closed
+///   form; otherwise ACI runs on a first pixel, only its first-level shadow rays (its "pattern")
+///   are traced on the following pixels until the pattern changes, ACI runs at the changed pixel
+///   and at the middle of the run, and the pixels in between are interpolated quadratically
+///   (the G vector, projected on each pixel's own normal). The first-level grid adapts along a
+///   span: finer after a refinement of depth >= 2 or a restart, coarser again when none was
+///   needed.
+/// - `Method::AciPixel` runs the full ACI at every pixel against every obstacle: no culling, no
+///   coherence, no interpolation. It is the reference the pipeline is measured against.
+///
+/// Units: world space, scene units; images are linear radiance.
+/// Thread safety: render() uses TBB internally (one task arena of `threads` workers, rows in
+/// parallel, a per-thread occluder query and estimator); calls on different scenes may run
+/// concurrently. The result does not depend on the number of threads, bit for bit.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "penumbra/contour_integrator.h"
+#include "penumbra/image_io.h"
+#include "penumbra/math.h"
+#include "penumbra/scene.h"
+#include "penumbra/stats.h"
+
+namespace penumbra {
+
+enum class Method { Aci, AciPixel };
+
+/// The command-line name of a method: "aci", "aci-pixel".
+const char* methodName(Method method);
+/// Inverse of methodName; throws InputError whose `where` is `flag` for an unknown name.
+Method parseMethod(const std::string& name, const std::string& flag = "--method");
+
+struct RenderSettings {
+    Method method = Method::Aci;
+    int width = 0;    ///< 0: the camera's width
+    int height = 0;   ///< 0: the camera's height
+    int threads = 0;  ///< worker threads; 0: every hardware thread
+    /// Estimator settings (grid p, steps n, ...). rayOffset <= 0 picks it automatically:
+    /// 1.5 voxels of the finest level set, or 1e-6 x the scene's size without level sets.
+    /// `gradient` off (the default here) skips the gradient, which only the gradient AOV uses.
+    AciSettings aci = [] {
+        AciSettings s;
+        s.gradient = false;
+        return s;
+    }();
+    int maxSpan = 32;          ///< longest span, in pixels (section 5: "a maximum length")
+    bool shaftCulling = true;  ///< off: every obstacle is a candidate of every span
+    bool coherence = true;     ///< off: ACI at every pixel of a span that has candidates
+    bool adaptiveGrid = true;  ///< section 5's adaptive first-level density
+    int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
+};
+
+/// Extra images (AOVs), one channel each, same size as the picture.
+struct RenderAovs {
+    Image shadowRays;  ///< shadow rays cast at the pixel, over all lights
+    Image formFactor;  ///< sum over lights of F (interpolated where the colour was)
+    Image gradient;    ///< |sum over lights of dF/dM|; zero unless settings.aci.gradient
+    Image mask;        ///< 1 where shadow rays were cast at the pixel, else 0
+};
+
+struct RenderResult {
+    Image color;  ///< 3 channels, linear
+    RenderAovs aovs;
+    RenderStats stats;
+};
+
+/// Called after each finished row with the number of rows done so far and the total. It is
+/// called from worker threads, never concurrently (the renderer serializes the calls), and must
+/// be quick.
+using RenderProgress = std::function<void(int rowsDone, int rowsTotal)>;
+
+/// Renders `scene` (which must have a camera: InputError naming "/camera" otherwise). Throws
+/// InputError for settings out of range (`where` names the command-line flag, e.g. "--width").
+RenderResult render(const Scene& scene, const RenderSettings& settings,
+                    const RenderProgress& progress = {});
+
+/// The shadow rays automatically chosen start offset (see RenderSettings::aci).
+double automaticRayOffset(const Scene& scene, const Occluder& occluder);
+
+/// A shaft between two boxes after Haines and Wallace (1991): their common bounding box cut by
+/// the planes through matching edges of the two boxes, a convex volume that contains the convex
+/// hull of the two boxes (so every segment from a point of one box to a point of the other).
+/// overlaps() is conservative: it never says false for a box that meets that convex hull.
+class Shaft {
+public:
+    Shaft(const Box3& a, const Box3& b);
+    bool overlaps(const Box3& box) const;
+    size_t planeCount() const { return mPlanes.size(); }
+
+private:
+    struct Plane {  // n . p <= d inside; n has two non-zero components (axes i, j)
+        int i, j;
+        double ni, nj, d;
+    };
+    Box3 mBox;
+    std::vector<Plane> mPlanes;
+};
+
+}  // namespace penumbra

@@ -1,0 +1,132 @@
+// `penumbra probe`: point queries in the manner of Radiance's `rtrace -I`. Reads sensor points
+// as CSV on stdin (header x,y,z,nx,ny,nz) and writes, in the same order, the form factor to one
+// light, its gradient with respect to the sensor position (normal fixed) and the shadow rays
+// spent, as CSV on stdout.
+#include <cmath>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "cli/commands.h"
+#include "penumbra/contour_integrator.h"
+#include "penumbra/error.h"
+#include "penumbra/scene.h"
+
+namespace penumbra::cli {
+
+namespace {
+
+struct ProbeOptions {
+    std::string scene;
+    std::string method = "aci";
+    std::string light;
+    int grid = 2;
+    int steps = 5;
+};
+
+std::vector<std::string> splitCsv(const std::string& line) {
+    std::vector<std::string> out;
+    std::stringstream ss(line);
+    std::string cell;
+    while (std::getline(ss, cell, ',')) {
+        const auto b = cell.find_first_not_of(" \t\r");
+        const auto e = cell.find_last_not_of(" \t\r");
+        out.push_back(b == std::string::npos ? "" : cell.substr(b, e - b + 1));
+    }
+    return out;
+}
+
+double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
+    try {
+        size_t used = 0;
+        const double v = std::stod(cell, &used);
+        if (used == cell.size() && std::isfinite(v)) return v;
+    } catch (const std::exception&) {
+    }
+    throw InputError("<stdin>", "line " + std::to_string(lineNo) + ", column " + column,
+                     "expected a finite number, got '" + cell + "'");
+}
+
+int runProbe(const ProbeOptions& opt) {
+    if (opt.method != "aci")
+        throw InputError("", "--method", "unknown method '" + opt.method + "' (probe supports: aci)");
+    if ((static_cast<long>(opt.grid) << (opt.steps + 1)) > kMaxLatticeUnits)
+        throw InputError("", "--aci-grid/--aci-steps",
+                         "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
+                             " (the shared sample lattice would not fit in memory)");
+    const Scene scene = loadScene(opt.scene);
+    const RectLight& light = scene.lights[scene.lightIndex(opt.light)];
+    const Occluder occluder = scene.makeOccluder();
+    Occluder::Query query = occluder.makeQuery();
+    AciSettings settings;
+    settings.grid = opt.grid;
+    settings.steps = opt.steps;
+    // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
+    settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
+    ContourIntegrator integrator(settings);
+
+    // Read everything first, so that bad input produces no partial output.
+    std::string line;
+    size_t lineNo = 0;
+    std::vector<Receiver> points;
+    static const char* kColumns[] = {"x", "y", "z", "nx", "ny", "nz"};
+    while (std::getline(std::cin, line)) {
+        ++lineNo;
+        if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+        const std::vector<std::string> cells = splitCsv(line);
+        if (lineNo == 1 && !cells.empty() && cells[0] == "x") {
+            const std::vector<std::string> expected(kColumns, kColumns + 6);
+            if (cells != expected)
+                throw InputError("<stdin>", "line 1", "expected the header x,y,z,nx,ny,nz");
+            continue;
+        }
+        if (cells.size() != 6)
+            throw InputError("<stdin>", "line " + std::to_string(lineNo),
+                             "expected 6 values (x,y,z,nx,ny,nz), got " +
+                                 std::to_string(cells.size()));
+        double v[6];
+        for (int i = 0; i < 6; ++i) v[i] = parseNumber(cells[i], lineNo, kColumns[i]);
+        const Vec3 n(v[3], v[4], v[5]);
+        const double len = glm::length(n);
+        if (!(len > 0.0))
+            throw InputError("<stdin>", "line " + std::to_string(lineNo), "the normal is zero");
+        points.push_back({Vec3(v[0], v[1], v[2]), n / len});
+    }
+
+    std::ostringstream out;
+    out << std::setprecision(12);
+    out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays\n";
+    for (const Receiver& r : points) {
+        const Estimate e = integrator.evaluate(r, light, query);
+        out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << e.formFactor << ','
+            << e.gradient.x << ',' << e.gradient.y << ',' << e.gradient.z << ','
+            << e.counts.shadowRays() << '\n';
+    }
+    std::cout << out.str() << std::flush;
+    return 0;
+}
+
+}  // namespace
+
+Runner addProbeCommand(CLI::App& app) {
+    auto opt = std::make_shared<ProbeOptions>();
+    CLI::App* sub = app.add_subcommand(
+        "probe",
+        "Form factor and its gradient at sensor points: CSV x,y,z,nx,ny,nz on stdin, CSV "
+        "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays on stdout");
+    sub->add_option("scene", opt->scene, "Scene file (JSON)")->required();
+    sub->add_option("--method", opt->method, "Estimator: aci (approximate contour integration)")
+        ->capture_default_str();
+    sub->add_option("--light", opt->light, "Name of the light (default: the only light)");
+    sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-64)")
+        ->check(CLI::Range(1, 64))
+        ->capture_default_str();
+    sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (0-12)")
+        ->check(CLI::Range(0, 12))
+        ->capture_default_str();
+    return [opt] { return runProbe(*opt); };
+}
+
+}  // namespace penumbra::cli

@@ -1,0 +1,345 @@
+#include "penumbra/contour_integrator.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace penumbra {
+
+namespace {
+
+constexpr float kVisible = -1.0f;
+constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
+
+struct LatticePoint {
+    int a, b;
+};
+
+LatticePoint midpoint(LatticePoint p, LatticePoint q) { return {(p.a + q.a) / 2, (p.b + q.b) / 2}; }
+
+// A contour vertex: C on the light, I on the obstacle along the same ray from M (Fig. 5).
+struct Vertex {
+    Vec3 c;
+    Vec3 i;
+};
+
+uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
+    uint32_t h = seed * 0x9E3779B9u ^ static_cast<uint32_t>(x) * 0x85EBCA6Bu ^
+                 static_cast<uint32_t>(y) * 0xC2B2AE35u ^ static_cast<uint32_t>(s) * 0x27D4EB2Fu;
+    h ^= h >> 15;
+    h *= 0x2C1B3C6Du;
+    h ^= h >> 12;
+    return h;
+}
+
+}  // namespace
+
+// One evaluation at one receiver point: the sample lattice and the running contour sums.
+//
+// The lattice has N = p * 2^(n+1) units per light edge, so that a first-level square has side
+// 2^(n+1) units and a dichotomy of n steps ends on an interval of 2 units: its midpoint, the
+// contour vertex, and every centre and semi-diagonal point are lattice points too. A square of
+// side 2^(k+1) gets k dichotomy steps; refinement and restarts both lower k by one.
+struct ContourIntegrator::Lattice {
+    ContourIntegrator& self;
+    const Receiver& rec;
+    const RectLight& light;
+    Occluder::Query& query;
+    int p, n, N;
+    Vec3 origin;
+    Vec3 lightNormal;
+    double epsWorld;  // world length of the final dichotomy interval (the strip width)
+    AciCounts counts;
+    Vec3 g{0.0};
+    Mat3 dg{0.0};
+
+    Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l, Occluder::Query& q, int grid,
+            int steps)
+        : self(s), rec(r), light(l), query(q), p(grid), n(steps), N(grid << (steps + 1)) {
+        origin = r.point + s.mSettings.rayOffset * r.normal;
+        lightNormal = l.normal();
+        epsWorld = (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;  // 2 units, averaged
+        const size_t size = static_cast<size_t>(N + 1) * (N + 1);
+        if (self.mStamp.size() < size) {
+            self.mStamp.assign(size, 0);
+            self.mSample.assign(size, 0.0f);
+            self.mGeneration = 0;
+        }
+        if (++self.mGeneration == 0) {  // wrapped: forget every stamp
+            std::fill(self.mStamp.begin(), self.mStamp.end(), 0);
+            self.mGeneration = 1;
+        }
+    }
+
+    Vec3 pointOf(LatticePoint q) const {
+        return light.point(double(q.a) / N, double(q.b) / N);
+    }
+
+    // Visibility of a lattice sample, tracing a ray only the first time it is asked for.
+    float& sample(LatticePoint q, bool firstLevel) {
+        const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
+        float& s = self.mSample[idx];
+        if (self.mStamp[idx] == self.mGeneration) {
+            ++counts.cacheHits;
+            return s;
+        }
+        self.mStamp[idx] = self.mGeneration;
+        const Vec3 target = pointOf(q);
+        if (glm::dot(target - rec.point, rec.normal) <= 0.0) {
+            s = kBelowHorizon;
+            return s;
+        }
+        (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
+        if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
+        double tHit = 0.0;
+        if (query.occluded(origin, target, &tHit)) {
+            const double len = glm::length(target - origin);
+            s = static_cast<float>(std::clamp(tHit / len, 0.01, 1.0));
+        } else {
+            s = kVisible;
+        }
+        return s;
+    }
+    bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
+    float peek(LatticePoint q) const {
+        return self.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
+    }
+
+    // Dichotomy between a visible and a hidden lattice point (section 3.1); the vertex is the
+    // middle of the final interval, or the exact horizon crossing when the hidden end is below
+    // the receiver's tangent plane.
+    Vertex crossing(LatticePoint vis, LatticePoint hid, int steps) {
+        for (int i = 0; i < steps; ++i) {
+            const LatticePoint m = midpoint(vis, hid);
+            (visible(m) ? vis : hid) = m;
+        }
+        const float h = peek(hid);
+        const Vec3 pv = pointOf(vis), ph = pointOf(hid);
+        Vertex v;
+        if (h == kBelowHorizon) {
+            const double hv = glm::dot(pv - rec.point, rec.normal);
+            const double hh = glm::dot(ph - rec.point, rec.normal);
+            v.c = pv + (hv / (hv - hh)) * (ph - pv);
+            v.i = v.c;
+        } else {
+            v.c = 0.5 * (pv + ph);
+            v.i = rec.point + double(h) * (v.c - rec.point);
+        }
+        return v;
+    }
+
+    void emit(const Vec3& a, const Vec3& b) {
+        if (self.mSettings.gradient) {
+            const EdgeDerivative e = edgeGWithDerivative(a - rec.point, b - rec.point);
+            g += e.g;
+            dg += e.dg;
+        } else {
+            g += edgeG(a - rec.point, b - rec.point);
+        }
+    }
+
+    double edgeF(const Vec3& a, const Vec3& b) const {
+        return glm::dot(edgeG(a - rec.point, b - rec.point), rec.normal) / (2.0 * kPi);
+    }
+
+    // Processes the square with lower-left lattice corner (x0, y0) and side s = 2^(k+1).
+    // thr < 0 asks for the threshold to be computed from the square's own contour.
+    // Returns false on an inconsistency that needs the whole light one level deeper.
+    bool square(int x0, int y0, int k, double thr, int depth) {
+        const int s = 2 << k;
+        const LatticePoint c[4] = {{x0, y0}, {x0 + s, y0}, {x0 + s, y0 + s}, {x0, y0 + s}};
+        bool v[4];
+        for (int i = 0; i < 4; ++i) v[i] = visible(c[i]);
+        const int nVisible = v[0] + v[1] + v[2] + v[3];
+        const bool onBorder[4] = {y0 == 0, x0 + s == N, y0 + s == N, x0 == 0};
+
+        if (nVisible == 0) return true;
+        if (nVisible == 4) {
+            for (int i = 0; i < 4; ++i)
+                if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
+            return true;
+        }
+
+        // Crossings on the sides whose ends differ (side i runs from c[i] to c[i+1]).
+        Vertex x[4];
+        for (int i = 0; i < 4; ++i) {
+            const int j = (i + 1) & 3;
+            if (v[i] != v[j]) x[i] = v[i] ? crossing(c[i], c[j], k) : crossing(c[j], c[i], k);
+        }
+
+        // Contour pieces: from an exit crossing (visible -> hidden walking counterclockwise) to
+        // an entry crossing, so that the visible part is on the left in (u, v). Each piece cuts
+        // off one corner, through which its check diagonal runs.
+        struct Piece {
+            int exitSide, entrySide;
+            LatticePoint checkVis, checkHid;
+            int checkSteps;
+        };
+        Piece pieces[2];
+        int nPieces = 0;
+        const LatticePoint mu{x0 + s / 2, y0 + s / 2};
+        const bool saddle = v[0] == v[2] && v[1] == v[3];
+        if (saddle) {
+            const bool muVisible = visible(mu);  // case 4: the centre ray decides
+            for (int i = 0; i < 4; ++i) {
+                if (!(v[i] && !v[(i + 1) & 3])) continue;  // exit on side i
+                // Centre visible: the hidden corner c[i+1] is cut off, the entry is on side i+1.
+                // Centre hidden: the visible corner c[i] is isolated, the entry is on side i-1.
+                const int cut = muVisible ? (i + 1) & 3 : i;
+                const int entry = muVisible ? (i + 1) & 3 : (i + 3) & 3;
+                Piece pc{i, entry, mu, c[cut], k > 0 ? k - 1 : 0};
+                if (!muVisible) std::swap(pc.checkVis, pc.checkHid);
+                pieces[nPieces++] = pc;
+            }
+        } else {
+            int exitSide = -1, entrySide = -1;
+            for (int i = 0; i < 4; ++i) {
+                const int j = (i + 1) & 3;
+                if (v[i] && !v[j]) exitSide = i;
+                if (!v[i] && v[j]) entrySide = i;
+            }
+            Piece pc{exitSide, entrySide, {}, {}, k};
+            if (nVisible != 2) {
+                // Case 2: the diagonal through the odd corner.
+                const bool odd = nVisible == 1;  // the odd corner is the one with v == odd
+                int corner = 0;
+                while (v[corner] != odd) ++corner;
+                const int opposite = (corner + 2) & 3;
+                pc.checkVis = v[corner] ? c[corner] : c[opposite];
+                pc.checkHid = v[corner] ? c[opposite] : c[corner];
+            } else {
+                // Case 3: either diagonal, chosen by a hash of the square (Vedel: at random).
+                const int d = hashSquare(x0, y0, s, self.mSettings.seed) & 1;
+                pc.checkVis = v[d] ? c[d] : c[d + 2];
+                pc.checkHid = v[d] ? c[d + 2] : c[d];
+            }
+            pieces[nPieces++] = pc;
+        }
+
+        // Section 3.2: one more contour point per piece; refine where the change exceeds the
+        // form factor of a strip of width epsilon around the piece.
+        Vertex z[2];
+        double change = 0.0, ownThr = 0.0;
+        for (int q = 0; q < nPieces; ++q) {
+            const Vertex& a = x[pieces[q].exitSide];
+            const Vertex& b = x[pieces[q].entrySide];
+            z[q] = crossing(pieces[q].checkVis, pieces[q].checkHid, pieces[q].checkSteps);
+            change += std::abs(edgeF(a.c, z[q].c) + edgeF(z[q].c, b.c) - edgeF(a.c, b.c));
+            ownThr += stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
+        }
+        if (thr < 0.0) thr = ownThr * self.mSettings.thresholdScale;
+
+        if (self.mSettings.refine && k > 0 && change > thr) {
+            ++counts.squaresRefined;
+            counts.maxDepth = std::max(counts.maxDepth, depth + 1);
+            // New samples at the middle of each side: a side whose ends agree but whose middle
+            // differs means the neighbouring square was treated wrongly (unless the side is on
+            // the light's border): restart one level deeper.
+            for (int i = 0; i < 4; ++i) {
+                const int j = (i + 1) & 3;
+                if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i])
+                    return false;
+            }
+            const int h = s / 2;
+            for (int sy = 0; sy < 2; ++sy)
+                for (int sx = 0; sx < 2; ++sx)
+                    if (!square(x0 + sx * h, y0 + sy * h, k - 1, 0.5 * thr, depth + 1)) return false;
+            return true;
+        }
+
+        for (int q = 0; q < nPieces; ++q) {
+            const Vertex& a = x[pieces[q].exitSide];
+            const Vertex& b = x[pieces[q].entrySide];
+            emit(a.i, z[q].i);
+            emit(z[q].i, b.i);
+        }
+        // The visible parts of the light's border, joined to the contour by radial junction
+        // edges C -> I (zero for the form factor, not for its gradient: Fig. 5).
+        for (int i = 0; i < 4; ++i) {
+            if (!onBorder[i]) continue;
+            const int j = (i + 1) & 3;
+            if (v[i] && v[j]) {
+                emit(pointOf(c[i]), pointOf(c[j]));
+            } else if (v[i]) {
+                emit(pointOf(c[i]), x[i].c);
+                emit(x[i].c, x[i].i);
+            } else if (v[j]) {
+                emit(x[i].i, x[i].c);
+                emit(x[i].c, pointOf(c[j]));
+            }
+        }
+        return true;
+    }
+
+    // One pass over the light at restart level r; false on an inconsistency.
+    bool pass(int r) {
+        g = Vec3(0.0);
+        dg = Mat3(0.0);
+        const int k = n - r;
+        const int s = 2 << k;
+        const int squares = p << r;
+        for (int j = 0; j <= squares; ++j)
+            for (int i = 0; i <= squares; ++i) visible({i * s, j * s}, true);
+        for (int j = 0; j < squares; ++j)
+            for (int i = 0; i < squares; ++i)
+                if (!square(i * s, j * s, k, -1.0, 0)) return false;
+        return true;
+    }
+};
+
+ContourIntegrator::ContourIntegrator(const AciSettings& settings) : mSettings(settings) {}
+
+Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
+                                     Occluder::Query& query) {
+    Estimate est;
+    if (!facesLight(light, r.point)) return est;
+    bool above = false;
+    for (const Vec3& c : light.polygon()) above |= glm::dot(c - r.point, r.normal) > 0.0;
+    if (!above) return est;
+
+    const int p = std::max(1, mSettings.grid);
+    int n = std::max(0, mSettings.steps);
+    while (n > 0 && (p << (n + 1)) > kMaxLatticeUnits) --n;
+    Lattice lat(*this, r, light, query, p, n);
+    int level = 0;
+    while (!lat.pass(level)) {
+        ++lat.counts.restarts;
+        ++level;  // cannot exceed n: at k = 0 no square refines, so no inconsistency arises
+    }
+    est.pattern.resize(static_cast<size_t>(p + 1) * (p + 1));
+    const int s0 = 2 << n;
+    for (int j = 0; j <= p; ++j)
+        for (int i = 0; i <= p; ++i) {
+            const size_t idx = static_cast<size_t>(j * s0) * (lat.N + 1) + i * s0;
+            est.pattern[static_cast<size_t>(j) * (p + 1) + i] = mSample[idx] == kVisible;
+        }
+    est.g = lat.g / (2.0 * kPi);
+    est.dg = lat.dg / (2.0 * kPi);
+    est.formFactor = glm::dot(est.g, r.normal);
+    for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
+    est.counts = lat.counts;
+    return est;
+}
+
+std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLight& light,
+                                                Occluder::Query& query, AciCounts& counts) {
+    const int p = std::max(1, mSettings.grid);
+    std::vector<uint8_t> out(static_cast<size_t>(p + 1) * (p + 1), 0);
+    if (!facesLight(light, r.point)) return out;
+    const Vec3 origin = r.point + mSettings.rayOffset * r.normal;
+    for (int j = 0; j <= p; ++j)
+        for (int i = 0; i <= p; ++i) {
+            const Vec3 target = light.point(double(i) / p, double(j) / p);
+            if (glm::dot(target - r.point, r.normal) <= 0.0) continue;
+            ++counts.firstLevelRays;
+            out[static_cast<size_t>(j) * (p + 1) + i] = !query.occluded(origin, target);
+        }
+    return out;
+}
+
+Estimate contourIntegral(const Receiver& r, const RectLight& light, Occluder::Query& query,
+                         const AciSettings& settings) {
+    ContourIntegrator integrator(settings);
+    return integrator.evaluate(r, light, query);
+}
+
+}  // namespace penumbra

@@ -1,0 +1,222 @@
+#include "penumbra/level_set.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <mutex>
+#include <sstream>
+
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/MeshToVolume.h>
+
+#include "level_set_impl.h"
+#include "penumbra/error.h"
+
+namespace penumbra {
+
+void ensureOpenVdbInitialized() {
+    // openvdb::initialize() registers grid and map types, which file I/O needs; calling it from
+    // several threads at once is not documented as safe, hence call_once.
+    static std::once_flag once;
+    std::call_once(once, [] { openvdb::initialize(); });
+}
+
+LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
+    mVoxelSize = mGrid->voxelSize()[0];
+    const openvdb::CoordBBox active = mGrid->evalActiveVoxelBoundingBox();
+    if (mGrid->activeVoxelCount() == 0 || active.empty()) return;  // bounds stay empty
+    // Voxel centres sit at integer index coordinates, so a voxel's cell spans +-0.5 around it.
+    const openvdb::Vec3d lo = active.min().asVec3d() - openvdb::Vec3d(0.5);
+    const openvdb::Vec3d hi = active.max().asVec3d() + openvdb::Vec3d(0.5);
+    // All eight corners: a linear transform may rotate the index box.
+    for (int c = 0; c < 8; ++c) {
+        const openvdb::Vec3d cornerIS((c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(),
+                                      (c & 4) ? hi.z() : lo.z());
+        const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
+        mBoundsWS.extend(Vec3(p.x(), p.y(), p.z()));
+    }
+}
+
+LevelSetInfo describe(const LevelSet& ls) {
+    const openvdb::FloatGrid& grid = ls.grid();
+    LevelSetInfo info;
+    info.name = grid.getName();
+    info.voxelSize = ls.voxelSize();
+    // A level set's background is the narrow-band half width in world units.
+    info.halfWidth = ls.voxelSize() > 0.0 ? double(grid.background()) / ls.voxelSize() : 0.0;
+    info.boundsWS = ls.boundsWS();
+    info.activeVoxels = grid.activeVoxelCount();
+    info.bytes = grid.memUsage();
+    return info;
+}
+
+namespace {
+
+void checkBuildParameters(double voxelSize, double halfWidthVoxels) {
+    if (!(voxelSize > 0.0)) {
+        throw InputError("", "", "level set voxel size must be > 0, got " +
+                                     std::to_string(voxelSize));
+    }
+    // OpenVDB's rasterizers refuse a band of one voxel or less.
+    if (!(halfWidthVoxels > 1.0)) {
+        throw InputError("", "", "level set half width must be > 1 voxel, got " +
+                                     std::to_string(halfWidthVoxels));
+    }
+}
+
+std::string gridClassName(openvdb::GridClass cls) {
+    return openvdb::GridBase::gridClassToString(cls);
+}
+
+}  // namespace
+
+LevelSetPtr makeSphereLevelSet(const Vec3& center, double radius, double voxelSize,
+                               double halfWidthVoxels, const std::string& name) {
+    checkBuildParameters(voxelSize, halfWidthVoxels);
+    if (!(radius > 0.0)) {
+        throw InputError("", "", "sphere radius must be > 0, got " + std::to_string(radius));
+    }
+    ensureOpenVdbInitialized();
+    openvdb::FloatGrid::Ptr grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        float(radius), openvdb::Vec3f(float(center.x), float(center.y), float(center.z)),
+        float(voxelSize), float(halfWidthVoxels));
+    grid->setName(name);
+    grid->setGridClass(openvdb::GRID_LEVEL_SET);
+    return std::make_shared<const LevelSet>(grid);
+}
+
+LevelSetPtr makeBoxLevelSet(const Vec3& lo, const Vec3& hi, double voxelSize,
+                            double halfWidthVoxels, const std::string& name) {
+    checkBuildParameters(voxelSize, halfWidthVoxels);
+    if (!(hi.x > lo.x && hi.y > lo.y && hi.z > lo.z)) {
+        throw InputError("", "", "box must have hi > lo on every axis");
+    }
+    ensureOpenVdbInitialized();
+    const openvdb::math::Transform::Ptr xform =
+        openvdb::math::Transform::createLinearTransform(voxelSize);
+    const openvdb::math::BBox<openvdb::Vec3d> box(openvdb::Vec3d(lo.x, lo.y, lo.z),
+                                                  openvdb::Vec3d(hi.x, hi.y, hi.z));
+    openvdb::FloatGrid::Ptr grid =
+        openvdb::tools::createLevelSetBox<openvdb::FloatGrid>(box, *xform, halfWidthVoxels);
+    grid->setName(name);
+    grid->setGridClass(openvdb::GRID_LEVEL_SET);
+    return std::make_shared<const LevelSet>(grid);
+}
+
+namespace {
+
+/// Turns one grid read from `file` into a LevelSet, or explains why it is not usable.
+LevelSetPtr acceptGrid(const openvdb::GridBase::Ptr& base, const std::string& file,
+                       const std::string& where) {
+    const std::string name = "grid '" + base->getName() + "'";
+    if (base->getGridClass() != openvdb::GRID_LEVEL_SET) {
+        throw InputError(file, where,
+                         name + " is not a level set (grid class '" +
+                             gridClassName(base->getGridClass()) + "')");
+    }
+    // Half-float grids are stored as "Tree_float_..._HalfFloat" and load as FloatGrid.
+    openvdb::FloatGrid::Ptr grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+    if (!grid) {
+        throw InputError(file, where,
+                         name + " has value type '" + base->valueType() + "', expected float");
+    }
+    const openvdb::math::Transform& xform = grid->transform();
+    if (!xform.isLinear() || !grid->hasUniformVoxels()) {
+        const openvdb::Vec3d v = xform.voxelSize();
+        std::ostringstream msg;
+        msg << name << " has non-uniform voxels (voxel size " << v.x() << " x " << v.y() << " x "
+            << v.z() << (xform.isLinear() ? "" : ", non-linear map")
+            << "); only uniform linear transforms are supported";
+        throw InputError(file, where, msg.str());
+    }
+    if (!(grid->background() > 0.0f)) {
+        throw InputError(file, where, name + " has a non-positive background value");
+    }
+    if (grid->activeVoxelCount() == 0) {
+        throw InputError(file, where, name + " has no active voxels");
+    }
+    return std::make_shared<const LevelSet>(grid);
+}
+
+}  // namespace
+
+std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::string& gridName,
+                                       const std::string& where) {
+    ensureOpenVdbInitialized();
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(file, ec)) {
+        throw InputError(file, where, "cannot read VDB file: no such file");
+    }
+    openvdb::GridPtrVecPtr grids;
+    try {
+        openvdb::io::File vdb(file);
+        // Read the voxel data now: delayed loading would make the render threads page leaves in.
+        vdb.open(/*delayLoad=*/false);
+        if (!gridName.empty()) {
+            if (!vdb.hasGrid(gridName)) {
+                std::string names;
+                for (auto it = vdb.beginName(); it != vdb.endName(); ++it) {
+                    names += (names.empty() ? "" : ", ") + ("'" + it.gridName() + "'");
+                }
+                throw InputError(file, where,
+                                 "no grid named '" + gridName + "' (the file holds " +
+                                     (names.empty() ? std::string("no grids") : names) + ")");
+            }
+            grids = std::make_shared<openvdb::GridPtrVec>();
+            grids->push_back(vdb.readGrid(gridName));
+        } else {
+            grids = vdb.getGrids();
+        }
+        vdb.close();
+    } catch (const InputError&) {
+        throw;
+    } catch (const std::exception& e) {
+        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
+    }
+
+    std::vector<LevelSetPtr> out;
+    if (!gridName.empty()) {
+        out.push_back(acceptGrid(grids->front(), file, where));
+        return out;
+    }
+    std::string skipped;
+    for (const openvdb::GridBase::Ptr& g : *grids) {
+        if (g->getGridClass() == openvdb::GRID_LEVEL_SET && g->isType<openvdb::FloatGrid>()) {
+            out.push_back(acceptGrid(g, file, where));
+        } else {
+            skipped += (skipped.empty() ? "" : ", ") + ("'" + g->getName() + "' (" +
+                                                        gridClassName(g->getGridClass()) +
+                                                        ", " + g->valueType() + ")");
+        }
+    }
+    if (out.empty()) {
+        throw InputError(file, where,
+                         "no float level-set grid in the file" +
+                             (skipped.empty() ? std::string(" (it holds no grids)")
+                                              : " (it holds " + skipped + ")"));
+    }
+    return out;
+}
+
+void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids) {
+    ensureOpenVdbInitialized();
+    openvdb::GridCPtrVec out;
+    for (const LevelSetPtr& ls : grids) out.push_back(ls->gridPtr());
+    // Write beside the target and rename, so a reader never sees a half-written file.
+    const std::string tmp = file + ".tmp";
+    try {
+        openvdb::io::File vdb(tmp);
+        vdb.write(out);
+        vdb.close();
+    } catch (const std::exception& e) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot write VDB file: " + e.what());
+    }
+    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
+    }
+}
+
+}  // namespace penumbra

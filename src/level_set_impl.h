@@ -1,0 +1,36 @@
+/// @file level_set_impl.h
+/// Internal: the OpenVDB grid behind penumbra::LevelSet. Include only from .cpp files that need
+/// the grid itself (OpenVDB headers are slow to compile).
+///
+/// Space: boundsWS() is the world-space box of the active voxels' cells (index box widened by
+/// half a voxel on each side, mapped through the grid's linear transform).
+/// Thread safety: immutable; share freely. Give each thread its own accessors.
+#pragma once
+
+#include <openvdb/openvdb.h>
+
+#include "penumbra/level_set.h"
+#include "penumbra/math.h"
+
+namespace penumbra {
+
+class LevelSet {
+public:
+    /// `grid` must be a float level set with uniform voxels and a linear transform.
+    explicit LevelSet(openvdb::FloatGrid::ConstPtr grid);
+
+    const openvdb::FloatGrid& grid() const { return *mGrid; }
+    const openvdb::FloatGrid::ConstPtr& gridPtr() const { return mGrid; }
+    const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
+    double voxelSize() const { return mVoxelSize; }
+
+private:
+    openvdb::FloatGrid::ConstPtr mGrid;
+    Box3 mBoundsWS;
+    double mVoxelSize = 0.0;
+};
+
+/// openvdb::initialize(), once per process, thread-safe.
+void ensureOpenVdbInitialized();
+
+}  // namespace penumbra

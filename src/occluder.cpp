@@ -1,0 +1,206 @@
+#include "penumbra/occluder.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include <openvdb/math/Ray.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/RayIntersector.h>
+
+#include "level_set_impl.h"
+
+namespace penumbra {
+
+namespace {
+
+using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
+using VdbRay = openvdb::math::Ray<double>;
+
+/// Per-thread state for one level-set obstacle. Copying gives a new accessor (registered with
+/// the tree on its own), which is what a second thread needs.
+struct LevelSetSlot {
+    explicit LevelSetSlot(const openvdb::FloatGrid& g)
+        : intersector(g), accessor(g.getConstAccessor()), grid(&g) {}
+    LevelSetSlot(const LevelSetSlot&) = default;
+
+    Intersector intersector;
+    openvdb::FloatGrid::ConstAccessor accessor;  // for the "starts inside" test
+    const openvdb::FloatGrid* grid;
+};
+
+/// End points are excluded from the segment by this much (relative to the segment length, with
+/// an absolute floor), so that a ray leaving a surface it starts on is not blocked by it.
+double segmentEpsilon(double length) { return 1e-9 * std::max(1.0, length); }
+
+/// Overlap of the chord [tA, tB] of a convex shape with the open interval (tMin, tMax); the
+/// reported distance is 0 when the segment starts inside the shape.
+bool chordOverlaps(double tA, double tB, double tMin, double tMax, double* t) {
+    if (!(tA < tMax && tB > tMin)) return false;
+    *t = tA > 0.0 ? tA : 0.0;
+    return true;
+}
+
+/// Exact ray-sphere test; `dir` is a unit vector.
+bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double tMin,
+               double tMax, double* t) {
+    const Vec3 oc = from - s.center;
+    const double b = glm::dot(oc, dir);
+    // Discriminant from the perpendicular distance to the centre, which keeps its precision
+    // for far-away spheres (b*b - c cancels).
+    const Vec3 perp = oc - b * dir;
+    const double disc = s.radius * s.radius - glm::dot(perp, perp);
+    if (disc < 0.0) return false;
+    const double c = glm::dot(oc, oc) - s.radius * s.radius;
+    // Roots of t^2 + 2bt + c = 0 without subtracting nearly equal numbers.
+    const double q = -(b + std::copysign(std::sqrt(disc), b));
+    double tA = q, tB = q != 0.0 ? c / q : 0.0;
+    if (tA > tB) std::swap(tA, tB);
+    return chordOverlaps(tA, tB, tMin, tMax, t);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Occluder
+
+Occluder::Occluder(std::vector<ObstacleShape> shapes) {
+    for (ObstacleShape& s : shapes) add(std::move(s));
+}
+
+void Occluder::add(ObstacleShape shape) {
+    Box3 b;
+    if (const auto* s = std::get_if<AnalyticSphere>(&shape)) {
+        b.lo = s->center - Vec3(s->radius);
+        b.hi = s->center + Vec3(s->radius);
+    } else if (const auto* x = std::get_if<AnalyticBox>(&shape)) {
+        b.lo = x->lo;
+        b.hi = x->hi;
+    } else {
+        const LevelSetPtr& ls = std::get<LevelSetPtr>(shape);
+        if (!ls) throw std::invalid_argument("Occluder::add: null level set");
+        b = ls->boundsWS();
+        if (!b.empty()) {
+            // A voxel of margin: the interpolated zero crossing may sit just outside the cells
+            // of the active voxels, and the ray marcher must start before it.
+            b.lo -= Vec3(ls->voxelSize());
+            b.hi += Vec3(ls->voxelSize());
+        }
+        mMinVoxel = mMinVoxel == 0.0 ? ls->voxelSize() : std::min(mMinVoxel, ls->voxelSize());
+    }
+    mShapes.push_back(std::move(shape));
+    mBounds.push_back(b);
+}
+
+Occluder::Query Occluder::makeQuery() const { return Query(*this); }
+
+// ---------------------------------------------------------------------------------------------
+// Occluder::Query
+
+struct Occluder::Query::Impl {
+    /// Index-aligned with the occluder's shapes; null for analytic shapes and empty grids.
+    std::vector<std::unique_ptr<LevelSetSlot>> levelSets;
+};
+
+Occluder::Query::Query(const Occluder& occluder)
+    : mOccluder(&occluder), mImpl(std::make_unique<Impl>()) {
+    mImpl->levelSets.resize(occluder.size());
+    for (size_t i = 0; i < occluder.size(); ++i) {
+        const auto* ls = std::get_if<LevelSetPtr>(&occluder.shape(i));
+        // The intersector refuses empty grids; an empty grid cannot occlude anyway.
+        if (ls && !occluder.bounds(i).empty()) {
+            mImpl->levelSets[i] = std::make_unique<LevelSetSlot>((*ls)->grid());
+        }
+    }
+}
+
+Occluder::Query::Query(const Query& other)
+    : mOccluder(other.mOccluder),
+      mImpl(std::make_unique<Impl>()),
+      mCandidates(other.mCandidates),
+      mRays(other.mRays) {
+    // Copies, not shares: each copy of an intersector owns a fresh value accessor, and copying
+    // skips the bounding-box scan that constructing one does.
+    mImpl->levelSets.resize(other.mImpl->levelSets.size());
+    for (size_t i = 0; i < other.mImpl->levelSets.size(); ++i) {
+        if (const auto& slot = other.mImpl->levelSets[i]) {
+            mImpl->levelSets[i] = std::make_unique<LevelSetSlot>(*slot);
+        }
+    }
+}
+
+Occluder::Query::Query(Query&&) noexcept = default;
+Occluder::Query::~Query() = default;
+
+bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
+    ++mRays;
+    const Vec3 delta = to - from;
+    const double length = glm::length(delta);
+    const double eps = segmentEpsilon(length);
+    if (!(length > 2.0 * eps)) return false;
+    const Vec3 dir = delta / length;
+    const Vec3 invDir = 1.0 / dir;  // +-inf on axes the ray does not move along
+    const double tMin = eps;
+    double tMax = length - eps;  // shrinks to the nearest hit so far when tHit is wanted
+    bool hit = false;
+    double best = std::numeric_limits<double>::infinity();
+
+    const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mCandidates ? (*mCandidates)[k] : k;
+        const Box3& bounds = mOccluder->bounds(i);
+        if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
+        double t0 = tMin, t1 = tMax;
+        if (!bounds.clipRay(from, invDir, t0, t1)) continue;
+
+        double t = 0.0;
+        bool found = false;
+        const ObstacleShape& shape = mOccluder->shape(i);
+        if (std::holds_alternative<AnalyticBox>(shape)) {
+            // The bounds are the box itself, so the clipped interval is the answer.
+            found = true;
+            t = t0 > tMin ? t0 : 0.0;
+        } else if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
+            found = hitSphere(*sphere, from, dir, tMin, tMax, &t);
+        } else {
+            LevelSetSlot& slot = *mImpl->levelSets[i];
+            if (t0 == tMin) {
+                // The segment starts inside the bounds: the marcher only finds sign changes,
+                // so a start inside the surface must be caught here.
+                const openvdb::Vec3d startIS =
+                    slot.grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
+                if (openvdb::tools::BoxSampler::sample(slot.accessor, startIS) < 0.0f) {
+                    found = true;
+                    t = 0.0;
+                }
+            }
+            if (!found) {
+                const VdbRay ray(openvdb::Vec3d(from.x, from.y, from.z),
+                                 openvdb::Vec3d(dir.x, dir.y, dir.z), t0, t1);
+                openvdb::Vec3d xyz;
+                // The overload returning the point: the one returning a time can hand back the
+                // previous ray's time (OpenVDB 10).
+                if (slot.intersector.intersectsWS(ray, xyz)) {
+                    // The marcher may overshoot t1 by up to a node, so test against tMax.
+                    t = glm::dot(Vec3(xyz.x(), xyz.y(), xyz.z()) - from, dir);
+                    found = t < tMax;
+                    if (t < 0.0) t = 0.0;
+                }
+            }
+        }
+        if (!found) continue;
+        if (!tHit) return true;
+        hit = true;
+        if (t < best) {
+            best = t;
+            if (best <= 0.0) break;  // nothing can be nearer than the start
+            tMax = std::max(tMin, std::min(tMax, t));
+        }
+    }
+    if (hit) *tHit = best;
+    return hit;
+}
+
+}  // namespace penumbra

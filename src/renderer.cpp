@@ -1,0 +1,569 @@
+#include "penumbra/renderer.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <limits>
+#include <cmath>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include "penumbra/camera.h"
+#include "penumbra/error.h"
+#include "penumbra/form_factor.h"
+#include "surface_normal.h"
+
+namespace penumbra {
+
+// ---------------------------------------------------------------------------------------------
+// Methods
+
+const char* methodName(Method method) {
+    switch (method) {
+        case Method::Aci: return "aci";
+        case Method::AciPixel: return "aci-pixel";
+    }
+    return "?";
+}
+
+Method parseMethod(const std::string& name, const std::string& flag) {
+    for (Method m : {Method::Aci, Method::AciPixel}) {
+        if (name == methodName(m)) return m;
+    }
+    throw InputError("", flag, "unknown method '" + name + "' (expected aci or aci-pixel)");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Shaft culling (Haines and Wallace 1991)
+
+Shaft::Shaft(const Box3& a, const Box3& b) {
+    mBox = a;
+    mBox.extend(b);
+    const Vec3* aSide[2] = {&a.lo, &a.hi};
+    const Vec3* bSide[2] = {&b.lo, &b.hi};
+    // For each edge direction of the common box (axes i, j, sides si, sj), the plane through the
+    // matching edges of a and b. It is a supporting plane of both boxes exactly when its outward
+    // normal points towards (si, sj) on both axes: then each box's extreme point in that direction
+    // is its (si, sj) edge, which lies on the plane. Otherwise the common box's faces already
+    // bound the hull there.
+    for (int i = 0; i < 3; ++i) {
+        for (int j = i + 1; j < 3; ++j) {
+            for (int si = 0; si < 2; ++si) {
+                for (int sj = 0; sj < 2; ++sj) {
+                    double ai = (*aSide[si])[i], aj = (*aSide[sj])[j];
+                    double bi = (*bSide[si])[i], bj = (*bSide[sj])[j];
+                    double di = bi - ai, dj = bj - aj;
+                    double ni = dj, nj = -di;  // perpendicular to (di, dj) in the (i, j) plane
+                    double wantI = si ? 1.0 : -1.0, wantJ = sj ? 1.0 : -1.0;
+                    if (ni * wantI < 0.0) {
+                        ni = -ni;
+                        nj = -nj;
+                    }
+                    if (!(ni * wantI > 0.0 && nj * wantJ > 0.0)) continue;
+                    double len = std::sqrt(ni * ni + nj * nj);
+                    ni /= len;
+                    nj /= len;
+                    mPlanes.push_back(Plane{i, j, ni, nj, ni * ai + nj * aj});
+                }
+            }
+        }
+    }
+}
+
+bool Shaft::overlaps(const Box3& box) const {
+    if (box.empty() || mBox.empty()) return false;
+    // A margin well above rounding (so the test stays conservative) and far below any geometry.
+    double scale = 1.0;
+    for (int a = 0; a < 3; ++a) {
+        scale = std::max({scale, std::abs(mBox.lo[a]), std::abs(mBox.hi[a]), std::abs(box.lo[a]),
+                          std::abs(box.hi[a])});
+    }
+    double eps = 1e-9 * scale;
+    for (int a = 0; a < 3; ++a) {
+        if (box.lo[a] > mBox.hi[a] + eps || box.hi[a] < mBox.lo[a] - eps) return false;
+    }
+    for (const Plane& p : mPlanes) {
+        // The box's corner deepest inside the plane.
+        double ci = p.ni > 0.0 ? box.lo[p.i] : box.hi[p.i];
+        double cj = p.nj > 0.0 ? box.lo[p.j] : box.hi[p.j];
+        if (p.ni * ci + p.nj * cj > p.d + eps) return false;
+    }
+    return true;
+}
+
+double automaticRayOffset(const Scene& scene, const Occluder& occluder) {
+    if (occluder.minVoxelSize() > 0.0) return 1.5 * occluder.minVoxelSize();
+    double scale = 1.0;
+    auto grow = [&](const Vec3& p) {
+        for (int a = 0; a < 3; ++a) {
+            if (std::isfinite(p[a])) scale = std::max(scale, std::abs(p[a]));
+        }
+    };
+    for (size_t i = 0; i < occluder.size(); ++i) {
+        if (!occluder.bounds(i).empty()) {
+            grow(occluder.bounds(i).lo);
+            grow(occluder.bounds(i).hi);
+        }
+    }
+    for (const RectLight& l : scene.lights) {
+        for (const Vec3& c : l.polygon()) grow(c);
+    }
+    if (scene.camera) grow(scene.camera->eye);
+    return 1e-6 * scale;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The renderer
+
+namespace {
+
+struct Hit {
+    int object = -1;  // planes 0 .. P-1, then obstacles P .. P+O-1; -1: background
+    Vec3 point{0.0};
+    Vec3 normal{0.0};
+    Rgb albedo{0.0};
+};
+
+struct PixelSum {
+    Rgb irradiance{0.0};  // sum over lights of radiance x F
+    double formFactor = 0.0;
+    Vec3 gradient{0.0};
+    uint64_t rays = 0;
+};
+
+// What the pipeline keeps of one full ACI evaluation.
+struct Sample {
+    Vec3 g{0.0};
+    Vec3 gradient{0.0};
+    std::vector<uint8_t> pattern;
+    int grid = 0;  // first-level grid the pattern was traced on
+};
+
+struct Context {
+    const Scene& scene;
+    const PinholeCamera& camera;
+    const Occluder& occluder;
+    const RenderSettings& settings;  // aci.rayOffset resolved
+    Image& color;
+    RenderAovs& aovs;
+};
+
+struct ThreadState {
+    ThreadState(const Occluder& occluder, const AciSettings& aci)
+        : shadow(occluder.makeQuery()), view(occluder.makeQuery()), integrator(aci) {}
+    Occluder::Query shadow;  // shadow rays only, so that its count is the shadow-ray count
+    Occluder::Query view;    // viewing rays
+    ContourIntegrator integrator;
+    RenderStats stats;
+    std::vector<Hit> hits;
+    std::vector<PixelSum> sums;
+    std::vector<uint32_t> candidates;
+    std::vector<uint32_t> single{0};
+    std::vector<uint8_t> lit;
+};
+
+Rgb planeAlbedo(const PlaneReceiver& plane, const Vec3& p) {
+    if (!plane.checker || !(plane.checkerScale > 0.0)) return plane.albedo;
+    // A fixed in-plane frame: u follows the world axis least aligned with the normal's
+    // complement, so that the usual z-up ground gets squares aligned with x and y.
+    Vec3 n = glm::normalize(plane.normal);
+    Vec3 axis = std::abs(n.x) < 0.9 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+    Vec3 u = glm::normalize(axis - n * glm::dot(n, axis));
+    Vec3 v = glm::cross(n, u);
+    Vec3 d = p - plane.point;
+    long a = long(std::floor(glm::dot(d, u) / plane.checkerScale));
+    long b = long(std::floor(glm::dot(d, v) / plane.checkerScale));
+    return ((a + b) & 1) ? plane.albedo2 : plane.albedo;
+}
+
+Hit castViewingRay(const Context& ctx, ThreadState& ts, int x, int y) {
+    const ViewRay ray = ctx.camera.pixelRay(x, y);
+    const auto& planes = ctx.scene.receivers;
+    Hit hit;
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < planes.size(); ++i) {
+        Vec3 n = glm::normalize(planes[i].normal);
+        double denom = glm::dot(ray.direction, n);
+        if (std::abs(denom) < 1e-12) continue;
+        double t = glm::dot(planes[i].point - ray.origin, n) / denom;
+        if (t > 0.0 && t < best) {
+            best = t;
+            hit.object = int(i);
+            hit.point = ray.at(t);
+            hit.normal = denom < 0.0 ? n : -n;  // planes are two-sided: face the viewer
+            hit.albedo = planeAlbedo(planes[i], hit.point);
+        }
+    }
+    const Vec3 invD(1.0 / ray.direction.x, 1.0 / ray.direction.y, 1.0 / ray.direction.z);
+    for (size_t i = 0; i < ctx.occluder.size(); ++i) {
+        double t0 = 0.0, t1 = best;
+        if (!ctx.occluder.bounds(i).clipRay(ray.origin, invD, t0, t1)) continue;
+        if (!std::isfinite(t1)) continue;
+        ts.single[0] = uint32_t(i);
+        ts.view.restrictTo(&ts.single);
+        double tHit = 0.0;
+        Vec3 from = ray.at(t0), to = ray.at(t1);
+        if (ts.view.occluded(from, to, &tHit) && t0 + tHit < best) {
+            best = t0 + tHit;
+            hit.object = int(planes.size() + i);
+            hit.point = ray.at(best);
+            hit.normal = surfaceNormal(ctx.occluder.shape(i), hit.point);
+            hit.albedo = ctx.scene.obstacles[i].albedo;
+        }
+    }
+    ts.view.restrictTo(nullptr);
+    return hit;
+}
+
+// True when some of the light can reach the receiver: it faces the emitting side and a corner of
+// the light is above its tangent plane. Otherwise F = 0 with no ray, as the estimator would find.
+bool seesLight(const RectLight& light, const Receiver& r) {
+    if (!facesLight(light, r.point)) return false;
+    for (const Vec3& c : light.polygon()) {
+        if (glm::dot(c - r.point, r.normal) > 0.0) return true;
+    }
+    return false;
+}
+
+Vec3 gradientOf(const Mat3& dg, const Vec3& n) {
+    // dF/dM_k = (d g / d M_k) . n with dg[k] = d g / d M_k (column k).
+    return Vec3(glm::dot(dg[0], n), glm::dot(dg[1], n), glm::dot(dg[2], n));
+}
+
+bool uniformPattern(const std::vector<uint8_t>& p) {
+    return std::all_of(p.begin(), p.end(), [&](uint8_t v) { return v == p.front(); });
+}
+
+class SpanShader {
+public:
+    SpanShader(const Context& ctx, ThreadState& ts, const RectLight& light)
+        : mCtx(ctx), mTs(ts), mLight(light), mSettings(ctx.settings) {}
+
+    // Shades pixels [x0, x1] of the current row (all on one object) for mLight.
+    void shadeSpan(int x0, int x1) {
+        RenderStats& st = mTs.stats;
+        ++st.spans;
+        Box3 spanBox;
+        int litCount = 0;
+        mTs.lit.assign(size_t(x1 - x0 + 1), 0);
+        for (int x = x0; x <= x1; ++x) {
+            if (seesLight(mLight, receiver(x))) {
+                mTs.lit[size_t(x - x0)] = 1;
+                spanBox.extend(mTs.hits[size_t(x)].point);
+                ++litCount;
+            }
+        }
+        if (litCount == 0) return;
+        // Shadow rays start up to rayOffset off the surface.
+        double pad = mSettings.aci.rayOffset;
+        spanBox.lo -= Vec3(pad);
+        spanBox.hi += Vec3(pad);
+
+        auto& cand = mTs.candidates;
+        cand.clear();
+        if (mSettings.shaftCulling) {
+            Box3 lightBox;
+            for (const Vec3& c : mLight.polygon()) lightBox.extend(c);
+            Shaft shaft(spanBox, lightBox);
+            for (size_t i = 0; i < mCtx.occluder.size(); ++i) {
+                if (shaft.overlaps(mCtx.occluder.bounds(i))) cand.push_back(uint32_t(i));
+            }
+        } else {
+            for (size_t i = 0; i < mCtx.occluder.size(); ++i) cand.push_back(uint32_t(i));
+        }
+
+        if (cand.empty()) {
+            ++st.culledSpans;
+            for (int x = x0; x <= x1; ++x) {
+                if (!mTs.lit[size_t(x - x0)]) continue;
+                Receiver r = receiver(x);
+                Vec3 grad(0.0);
+                if (mSettings.aci.gradient) grad = gradientOf(unoccludedG(mLight, r).dg, r.normal);
+                store(x, unoccludedFormFactor(mLight, r), grad);
+                ++st.closedFormPixels;
+            }
+            return;
+        }
+
+        mTs.shadow.restrictTo(&cand);
+        mGrid = mSettings.aci.grid;  // the adaptive density starts afresh on every span
+        int x = x0;
+        while (x <= x1) {
+            if (!mTs.lit[size_t(x - x0)]) {
+                ++x;
+                continue;
+            }
+            int end = x;
+            while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)]) ++end;
+            shadeRun(x, end);
+            x = end + 1;
+        }
+        mTs.shadow.restrictTo(nullptr);
+    }
+
+    // Full ACI at every lit pixel against every obstacle (Method::AciPixel).
+    void shadePixel(int x) {
+        Receiver r = receiver(x);
+        if (!seesLight(mLight, r)) return;
+        mGrid = mSettings.aci.grid;
+        mTs.shadow.restrictTo(nullptr);
+        Estimate e = evaluate(x, /*adapt=*/false);
+        store(x, e.formFactor, e.gradient);
+    }
+
+private:
+    Receiver receiver(int x) const {
+        const Hit& h = mTs.hits[size_t(x)];
+        return Receiver{h.point, h.normal};
+    }
+
+    void store(int x, double f, const Vec3& grad) {
+        PixelSum& s = mTs.sums[size_t(x)];
+        s.irradiance += mLight.radiance * f;
+        s.formFactor += f;
+        s.gradient += grad;
+    }
+
+    Estimate evaluate(int x, bool adapt) {
+        AciSettings s = mSettings.aci;
+        s.grid = mGrid;
+        mTs.integrator.setSettings(s);
+        uint64_t before = mTs.shadow.raysCast();
+        Estimate e = mTs.integrator.evaluate(receiver(x), mLight, mTs.shadow);
+        mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        RenderStats& st = mTs.stats;
+        ++st.aciEvaluations;
+        st.firstLevelRays += e.counts.firstLevelRays;
+        st.secondLevelRays += e.counts.secondLevelRays;
+        st.cacheHits += e.counts.cacheHits;
+        st.restarts += e.counts.restarts;
+        st.squaresRefined += e.counts.squaresRefined;
+        st.maxDepth = std::max(st.maxDepth, e.counts.maxDepth);
+        if (adapt && mSettings.adaptiveGrid) {
+            // Vedel 1993, section 5: finer after a refinement of depth >= 2 or an inconsistency,
+            // coarser again when no refinement was needed, unchanged after depth 1.
+            int base = mSettings.aci.grid, top = base * mSettings.maxGridFactor;
+            if (e.counts.maxDepth >= 2 || e.counts.restarts > 0) {
+                if (mGrid < top) {
+                    mGrid = std::min(top, 2 * mGrid);
+                    ++st.gridIncreases;
+                }
+            } else if (e.counts.maxDepth == 0 && mGrid > base) {
+                mGrid = std::max(base, mGrid / 2);
+                ++st.gridDecreases;
+            }
+        }
+        return e;
+    }
+
+    Sample exact(int x) {
+        int grid = mGrid;
+        Estimate e = evaluate(x, /*adapt=*/true);
+        store(x, e.formFactor, e.gradient);
+        return Sample{e.g, e.gradient, std::move(e.pattern), grid};
+    }
+
+    std::vector<uint8_t> pattern(int x, int grid) {
+        AciSettings s = mSettings.aci;
+        s.grid = grid;
+        mTs.integrator.setSettings(s);
+        AciCounts counts;
+        uint64_t before = mTs.shadow.raysCast();
+        std::vector<uint8_t> p = mTs.integrator.pattern(receiver(x), mLight, mTs.shadow, counts);
+        mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        ++mTs.stats.patternEvaluations;
+        mTs.stats.firstLevelRays += counts.firstLevelRays;
+        mTs.stats.secondLevelRays += counts.secondLevelRays;
+        return p;
+    }
+
+    // Pixels [x0, x1], all seeing the light, with a non-empty candidate list.
+    void shadeRun(int x0, int x1) {
+        Sample a = exact(x0);
+        int x = x0;
+        while (x < x1) {
+            size_t side = size_t(a.grid) + 1;
+            bool usable = a.pattern.size() == side * side && !uniformPattern(a.pattern);
+            // With a uniform pattern (all visible, all hidden) ACI spends only the first-level
+            // rays, as a pattern would, and its answer is exact: no reason to interpolate.
+            if (!mSettings.coherence || !usable) {
+                a = exact(++x);
+                continue;
+            }
+            int k = x + 1;
+            while (k < x1 && pattern(k, a.grid) == a.pattern) ++k;
+            // k is the pixel where the pattern changed, or the run's last pixel.
+            Sample mid;
+            int m = (x + k) / 2;
+            if (k - x >= 2) mid = exact(m);  // before k, so that k's result sets the density
+            Sample b = exact(k);
+            for (int i = x + 1; i < k; ++i) {
+                if (i == m) continue;
+                interpolate(i, x, a, m, mid, k, b);
+            }
+            x = k;
+            a = std::move(b);
+        }
+    }
+
+    // Quadratic (Lagrange) interpolation through the samples at pixels x0 < xm < x1, of G
+    // projected on the pixel's own normal (Vedel 1993, section 5), and of the gradient.
+    void interpolate(int i, int x0, const Sample& s0, int xm, const Sample& sm, int x1,
+                     const Sample& s1) {
+        double t = i, t0 = x0, tm = xm, t1 = x1;
+        double w0 = (t - tm) * (t - t1) / ((t0 - tm) * (t0 - t1));
+        double wm = (t - t0) * (t - t1) / ((tm - t0) * (tm - t1));
+        double w1 = (t - t0) * (t - tm) / ((t1 - t0) * (t1 - tm));
+        Vec3 g = w0 * s0.g + wm * sm.g + w1 * s1.g;
+        Vec3 grad = w0 * s0.gradient + wm * sm.gradient + w1 * s1.gradient;
+        double f = std::max(0.0, glm::dot(g, mTs.hits[size_t(i)].normal));
+        store(i, f, grad);
+        ++mTs.stats.interpolatedPixels;
+    }
+
+    const Context& mCtx;
+    ThreadState& mTs;
+    const RectLight& mLight;
+    const RenderSettings& mSettings;
+    int mGrid = 2;
+};
+
+void renderRow(const Context& ctx, ThreadState& ts, int y) {
+    const int width = ctx.camera.width();
+    const RenderSettings& settings = ctx.settings;
+    RenderStats& st = ts.stats;
+    ts.hits.resize(size_t(width));
+    ts.sums.assign(size_t(width), PixelSum{});
+    for (int x = 0; x < width; ++x) {
+        ts.hits[size_t(x)] = castViewingRay(ctx, ts, x, y);
+        ++st.viewingRays;
+        if (ts.hits[size_t(x)].object >= 0) ++st.viewingRayHits;
+    }
+
+    for (const RectLight& light : ctx.scene.lights) {
+        SpanShader shader(ctx, ts, light);
+        if (settings.method == Method::AciPixel) {
+            for (int x = 0; x < width; ++x) {
+                if (ts.hits[size_t(x)].object >= 0) shader.shadePixel(x);
+            }
+            continue;
+        }
+        // Section 5: spans of adjacent pixels on one object, at most maxSpan long.
+        int x = 0;
+        while (x < width) {
+            int object = ts.hits[size_t(x)].object;
+            if (object < 0) {
+                ++x;
+                continue;
+            }
+            int end = x;
+            while (end + 1 < width && end + 1 - x < settings.maxSpan &&
+                   ts.hits[size_t(end + 1)].object == object) {
+                ++end;
+            }
+            shader.shadeSpan(x, end);
+            x = end + 1;
+        }
+    }
+
+    for (int x = 0; x < width; ++x) {
+        const Hit& h = ts.hits[size_t(x)];
+        const PixelSum& s = ts.sums[size_t(x)];
+        Rgb c = h.object >= 0 ? h.albedo * s.irradiance : ctx.scene.background;
+        for (int k = 0; k < 3; ++k) ctx.color.at(x, y, k) = float(c[k]);
+        ctx.aovs.shadowRays.at(x, y) = float(s.rays);
+        ctx.aovs.formFactor.at(x, y) = float(s.formFactor);
+        ctx.aovs.gradient.at(x, y) = float(glm::length(s.gradient));
+        ctx.aovs.mask.at(x, y) = s.rays > 0 ? 1.0f : 0.0f;
+        st.shadowRays += s.rays;
+        if (s.rays > 0) ++st.viewingRaysWithShadowRays;
+    }
+}
+
+void checkRange(const std::string& flag, long value, long lo, long hi) {
+    if (value < lo || value > hi) {
+        throw InputError("", flag,
+                         "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                             "], got " + std::to_string(value));
+    }
+}
+
+}  // namespace
+
+RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
+                    const RenderProgress& progress) {
+    if (!scene.camera) {
+        throw InputError(scene.file, "/camera", "the scene has no camera, which rendering needs");
+    }
+    checkRange("--width", settingsIn.width, 0, 65536);
+    checkRange("--height", settingsIn.height, 0, 65536);
+    checkRange("--threads", settingsIn.threads, 0, 4096);
+    checkRange("--aci-grid", settingsIn.aci.grid, 1, 32);
+    checkRange("--aci-steps", settingsIn.aci.steps, 1, 12);
+    checkRange("--max-span", settingsIn.maxSpan, 1, 1 << 20);
+    checkRange("--max-grid-factor", settingsIn.maxGridFactor, 1, 16);
+
+    auto start = std::chrono::steady_clock::now();
+    Camera cam = *scene.camera;
+    if (settingsIn.width > 0) cam.width = settingsIn.width;
+    if (settingsIn.height > 0) cam.height = settingsIn.height;
+    const PinholeCamera camera(cam, scene.file);
+    const Occluder occluder = scene.makeOccluder();
+
+    RenderSettings settings = settingsIn;
+    if (!(settings.aci.rayOffset > 0.0)) settings.aci.rayOffset = automaticRayOffset(scene, occluder);
+    const int threads =
+        settings.threads > 0 ? settings.threads : std::max(1, tbb::info::default_concurrency());
+
+    const int width = camera.width(), height = camera.height();
+    RenderResult result;
+    result.color = Image(width, height, 3);
+    result.aovs.shadowRays = Image(width, height, 1);
+    result.aovs.formFactor = Image(width, height, 1);
+    result.aovs.gradient = Image(width, height, 1);
+    result.aovs.mask = Image(width, height, 1);
+    const Context ctx{scene, camera, occluder, settings, result.color, result.aovs};
+
+    tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
+    std::mutex progressMutex;
+    int rowsDone = 0;
+    tbb::task_arena arena(threads);
+    arena.execute([&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, height, 1),
+                          [&](const tbb::blocked_range<int>& rows) {
+                              auto& state = states.local();
+                              if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
+                              for (int y = rows.begin(); y < rows.end(); ++y) {
+                                  renderRow(ctx, *state, y);
+                                  if (progress) {
+                                      std::lock_guard<std::mutex> lock(progressMutex);
+                                      progress(++rowsDone, height);
+                                  }
+                              }
+                          });
+    });
+
+    RenderStats& stats = result.stats;
+    for (const auto& state : states) {
+        if (state) stats.merge(state->stats);
+    }
+    stats.method = methodName(settings.method);
+    stats.width = width;
+    stats.height = height;
+    stats.threads = threads;
+    stats.lights = int(scene.lights.size());
+    stats.aciGrid = settings.aci.grid;
+    stats.aciSteps = settings.aci.steps;
+    stats.seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return result;
+}
+
+}  // namespace penumbra

@@ -1,0 +1,89 @@
+#include "penumbra/stats.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <stdexcept>
+
+#include <nlohmann/json.hpp>
+
+namespace penumbra {
+
+void RenderStats::merge(const RenderStats& o) {
+    viewingRays += o.viewingRays;
+    viewingRayHits += o.viewingRayHits;
+    viewingRaysWithShadowRays += o.viewingRaysWithShadowRays;
+    shadowRays += o.shadowRays;
+    firstLevelRays += o.firstLevelRays;
+    secondLevelRays += o.secondLevelRays;
+    cacheHits += o.cacheHits;
+    spans += o.spans;
+    culledSpans += o.culledSpans;
+    closedFormPixels += o.closedFormPixels;
+    aciEvaluations += o.aciEvaluations;
+    patternEvaluations += o.patternEvaluations;
+    interpolatedPixels += o.interpolatedPixels;
+    restarts += o.restarts;
+    squaresRefined += o.squaresRefined;
+    gridIncreases += o.gridIncreases;
+    gridDecreases += o.gridDecreases;
+    maxDepth = std::max(maxDepth, o.maxDepth);
+}
+
+std::string RenderStats::toJson() const {
+    nlohmann::ordered_json j;
+    j["method"] = method;
+    j["width"] = width;
+    j["height"] = height;
+    j["threads"] = threads;
+    j["lights"] = lights;
+    j["aci_grid"] = aciGrid;
+    j["aci_steps"] = aciSteps;
+    j["seconds"] = seconds;
+    j["viewing_rays"] = viewingRays;
+    j["viewing_ray_hits"] = viewingRayHits;
+    j["viewing_rays_with_shadow_rays"] = viewingRaysWithShadowRays;
+    j["shadow_rays"] = shadowRays;
+    j["shadow_rays_per_viewing_ray"] = shadowRaysPerViewingRay();
+    j["first_level_rays"] = firstLevelRays;
+    j["second_level_rays"] = secondLevelRays;
+    j["cache_hits"] = cacheHits;
+    j["spans"] = spans;
+    j["culled_spans"] = culledSpans;
+    j["closed_form_pixels"] = closedFormPixels;
+    j["aci_evaluations"] = aciEvaluations;
+    j["pattern_evaluations"] = patternEvaluations;
+    j["interpolated_pixels"] = interpolatedPixels;
+    j["restarts"] = restarts;
+    j["squares_refined"] = squaresRefined;
+    j["grid_increases"] = gridIncreases;
+    j["grid_decreases"] = gridDecreases;
+    j["max_depth"] = maxDepth;
+    return j.dump(2) + "\n";
+}
+
+void writeStatsJson(const std::string& path, const RenderStats& stats) {
+    size_t slash = path.find_last_of('/');
+    std::string dir = slash == std::string::npos ? "" : path.substr(0, slash + 1);
+    std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
+    std::string tmp = dir + "." + base + ".tmp-" + std::to_string(::getpid());
+    {
+        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+        if (out) out << stats.toJson();
+        if (!out || !out.flush()) {
+            std::remove(tmp.c_str());
+            throw std::runtime_error("cannot write '" + path + "': " + std::strerror(errno));
+        }
+    }
+    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+        int err = errno;
+        std::remove(tmp.c_str());
+        throw std::runtime_error("cannot write '" + path + "': " + std::strerror(err));
+    }
+}
+
+}  // namespace penumbra
