@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace penumbra {
 
@@ -62,6 +63,7 @@ struct ContourIntegrator::Lattice {
         if (self.mStamp.size() < size) {
             self.mStamp.assign(size, 0);
             self.mSample.assign(size, 0.0f);
+            self.mClear.assign(size, 0.0f);
             self.mGeneration = 0;
         }
         if (++self.mGeneration == 0) {  // wrapped: forget every stamp
@@ -84,6 +86,8 @@ struct ContourIntegrator::Lattice {
         }
         self.mStamp[idx] = self.mGeneration;
         const Vec3 target = pointOf(q);
+        float& clear = self.mClear[idx];
+        clear = std::numeric_limits<float>::quiet_NaN();
         if (glm::dot(target - rec.point, rec.normal) <= 0.0) {
             s = kBelowHorizon;
             return s;
@@ -91,7 +95,11 @@ struct ContourIntegrator::Lattice {
         (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
         if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
         double tHit = 0.0;
-        if (query.occluded(origin, target, &tHit)) {
+        Clearance c;
+        const bool hidden = query.occluded(origin, target, &tHit,
+                                           self.mSettings.distanceGuided ? &c : nullptr);
+        if (c.known() && c.at > 0.0) clear = static_cast<float>(c.distance / c.at);
+        if (hidden) {
             const double len = glm::length(target - origin);
             s = static_cast<float>(std::clamp(tHit / len, 0.01, 1.0));
         } else {
@@ -103,15 +111,47 @@ struct ContourIntegrator::Lattice {
     float peek(LatticePoint q) const {
         return self.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
     }
+    float clearanceOf(LatticePoint q) const {
+        return self.mClear[static_cast<size_t>(q.b) * (N + 1) + q.a];
+    }
 
     // Dichotomy between a visible and a hidden lattice point (section 3.1); the vertex is the
     // middle of the final interval, or the exact horizon crossing when the hidden end is below
-    // the receiver's tangent plane.
+    // the receiver's tangent plane. With distanceGuided, samples go where the secant through
+    // the ends' signed clearances puts the silhouette (still lattice points, still narrowing
+    // to one final interval) and the vertex is interpolated inside that interval.
     Vertex crossing(LatticePoint vis, LatticePoint hid, int steps) {
-        for (int i = 0; i < steps; ++i) {
-            const LatticePoint m = midpoint(vis, hid);
-            (visible(m) ? vis : hid) = m;
+        if (!self.mSettings.distanceGuided) {
+            for (int i = 0; i < steps; ++i) {
+                const LatticePoint m = midpoint(vis, hid);
+                (visible(m) ? vis : hid) = m;
+            }
+            return vertexBetween(vis, hid, 0.5);
         }
+        // Positions j = 0 .. 2^steps along vis -> hid, one final interval apart.
+        const int count = 1 << steps;
+        const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
+        auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
+        int lo = 0, hi = count, slow = 0;
+        while (hi - lo > 1) {
+            const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+            int j = (lo + hi) / 2;
+            const bool secant = slow < 2 && cl > 0.0f && ch < 0.0f;  // false for NaN
+            if (secant) {
+                const double e = lo + (hi - lo) * double(cl) / (double(cl) - double(ch));
+                j = std::clamp(static_cast<int>(std::floor(e)), lo + 1, hi - 1);
+            }
+            const int before = hi - lo;
+            (visible(at(j)) ? lo : hi) = j;
+            if (secant && 2 * (hi - lo) > before) ++slow;  // secant stalling: bisect instead
+        }
+        const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+        const double f = (cl > 0.0f && ch < 0.0f) ? double(cl) / (double(cl) - double(ch)) : 0.5;
+        return vertexBetween(at(lo), at(hi), f);
+    }
+
+    // The contour vertex at fraction f of the final interval vis -> hid.
+    Vertex vertexBetween(LatticePoint vis, LatticePoint hid, double f) {
         const float h = peek(hid);
         const Vec3 pv = pointOf(vis), ph = pointOf(hid);
         Vertex v;
@@ -121,7 +161,7 @@ struct ContourIntegrator::Lattice {
             v.c = pv + (hv / (hv - hh)) * (ph - pv);
             v.i = v.c;
         } else {
-            v.c = 0.5 * (pv + ph);
+            v.c = pv + f * (ph - pv);
             v.i = rec.point + double(h) * (v.c - rec.point);
         }
         return v;

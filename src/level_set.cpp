@@ -1,14 +1,14 @@
 #include "penumbra/level_set.h"
 
-#include <cstdio>
-#include <filesystem>
-#include <mutex>
-#include <sstream>
-
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <mutex>
+#include <sstream>
 
 #include "level_set_impl.h"
 #include "penumbra/error.h"
@@ -55,13 +55,14 @@ namespace {
 
 void checkBuildParameters(double voxelSize, double halfWidthVoxels) {
     if (!(voxelSize > 0.0)) {
-        throw InputError("", "", "level set voxel size must be > 0, got " +
-                                     std::to_string(voxelSize));
+        throw InputError("", "",
+                         "level set voxel size must be > 0, got " + std::to_string(voxelSize));
     }
     // OpenVDB's rasterizers refuse a band of one voxel or less.
     if (!(halfWidthVoxels > 1.0)) {
-        throw InputError("", "", "level set half width must be > 1 voxel, got " +
-                                     std::to_string(halfWidthVoxels));
+        throw InputError(
+            "", "",
+            "level set half width must be > 1 voxel, got " + std::to_string(halfWidthVoxels));
     }
 }
 
@@ -185,9 +186,9 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
         if (g->getGridClass() == openvdb::GRID_LEVEL_SET && g->isType<openvdb::FloatGrid>()) {
             out.push_back(acceptGrid(g, file, where));
         } else {
-            skipped += (skipped.empty() ? "" : ", ") + ("'" + g->getName() + "' (" +
-                                                        gridClassName(g->getGridClass()) +
-                                                        ", " + g->valueType() + ")");
+            skipped += (skipped.empty() ? "" : ", ") +
+                       ("'" + g->getName() + "' (" + gridClassName(g->getGridClass()) + ", " +
+                        g->valueType() + ")");
         }
     }
     if (out.empty()) {

@@ -15,7 +15,7 @@
 namespace penumbra {
 
 class LevelSet {
-public:
+  public:
     /// `grid` must be a float level set with uniform voxels and a linear transform.
     explicit LevelSet(openvdb::FloatGrid::ConstPtr grid);
 
@@ -24,7 +24,7 @@ public:
     const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
     double voxelSize() const { return mVoxelSize; }
 
-private:
+  private:
     openvdb::FloatGrid::ConstPtr mGrid;
     Box3 mBoundsWS;
     double mVoxelSize = 0.0;

@@ -1,14 +1,15 @@
 #include "penumbra/occluder.h"
 
-#include <algorithm>
-#include <cmath>
-#include <limits>
-#include <stdexcept>
-
 #include <openvdb/math/Ray.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/RayIntersector.h>
+
+#include <algorithm>
+#include <cassert>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
 
 #include "level_set_impl.h"
 
@@ -44,8 +45,8 @@ bool chordOverlaps(double tA, double tB, double tMin, double tMax, double* t) {
 }
 
 /// Exact ray-sphere test; `dir` is a unit vector.
-bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double tMin,
-               double tMax, double* t) {
+bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double tMin, double tMax,
+               double* t) {
     const Vec3 oc = from - s.center;
     const double b = glm::dot(oc, dir);
     // Discriminant from the perpendicular distance to the centre, which keeps its precision
@@ -135,7 +136,53 @@ Occluder::Query::Query(Query&&) noexcept = default;
 Occluder::Query::~Query() = default;
 
 bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
+    return occluded(from, to, tHit, nullptr);
+}
+
+namespace {
+
+/// Signed distance between the segment from + t dir, t in [t0, t1], and a sphere's surface.
+Clearance sphereClearance(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double t0,
+                          double t1) {
+    Clearance c;
+    c.at = std::clamp(glm::dot(s.center - from, dir), t0, t1);
+    c.distance = glm::length(from + c.at * dir - s.center) - s.radius;
+    return c;
+}
+
+/// Smallest level-set value along the segment (sphere tracing: steps of the distance itself,
+/// at least half a voxel), stopping once past the deepest point inside. Unknown when the
+/// smallest value is clamped at the narrow band's edge.
+Clearance levelSetClearance(LevelSetSlot& slot, const Vec3& from, const Vec3& dir, double t0,
+                            double t1) {
+    const double voxel = slot.grid->voxelSize()[0];
+    const double band = slot.grid->background();
+    Clearance c;
+    double minPhi = std::numeric_limits<double>::infinity();
+    for (double t = t0; t <= t1;) {
+        const Vec3 p = from + t * dir;
+        const double phi = openvdb::tools::BoxSampler::sample(
+            slot.accessor, slot.grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
+        if (phi < minPhi) {
+            minPhi = phi;
+            c.at = t;
+        }
+        if (minPhi < 0.0 && phi > minPhi + voxel) break;  // climbing out past the deepest point
+        t += std::max(0.8 * std::abs(phi), 0.5 * voxel);
+    }
+    if (std::abs(minPhi) < 0.98 * band) c.distance = minPhi;
+    return c;
+}
+
+}  // namespace
+
+bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
+                               Clearance* clearance) {
     ++mRays;
+    if (clearance) *clearance = Clearance{};
+    bool clearanceKnown = true;
+    double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
+    bool touched = false;
     const Vec3 delta = to - from;
     const double length = glm::length(delta);
     const double eps = segmentEpsilon(length);
@@ -150,6 +197,7 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
     const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
     for (size_t k = 0; k < count; ++k) {
         const size_t i = mCandidates ? (*mCandidates)[k] : k;
+        assert(i < mOccluder->size());
         const Box3& bounds = mOccluder->bounds(i);
         if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
         double t0 = tMin, t1 = tMax;
@@ -158,6 +206,19 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
         double t = 0.0;
         bool found = false;
         const ObstacleShape& shape = mOccluder->shape(i);
+        if (clearance) {
+            touched = true;
+            Clearance ci;
+            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape))
+                ci = sphereClearance(*sphere, from, dir, t0, t1);
+            else if (std::holds_alternative<LevelSetPtr>(shape))
+                ci = levelSetClearance(*mImpl->levelSets[i], from, dir, t0, t1);
+            if (!ci.known()) clearanceKnown = false;
+            else if (ci.distance < clearanceMin) {
+                clearanceMin = ci.distance;
+                clearanceAt = ci.at;
+            }
+        }
         if (std::holds_alternative<AnalyticBox>(shape)) {
             // The bounds are the box itself, so the clipped interval is the answer.
             found = true;
@@ -183,7 +244,8 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
                 // The overload returning the point: the one returning a time can hand back the
                 // previous ray's time (OpenVDB 10).
                 if (slot.intersector.intersectsWS(ray, xyz)) {
-                    // The marcher may overshoot t1 by up to a node, so test against tMax.
+                    // The marcher stops at t1, but t is recomputed from a point that went
+                    // through the index-space map: keep the segment end exclusive.
                     t = glm::dot(Vec3(xyz.x(), xyz.y(), xyz.z()) - from, dir);
                     found = t < tMax;
                     if (t < 0.0) t = 0.0;
@@ -191,7 +253,7 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
             }
         }
         if (!found) continue;
-        if (!tHit) return true;
+        if (!tHit && !clearance) return true;
         hit = true;
         if (t < best) {
             best = t;
@@ -199,7 +261,11 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
             tMax = std::max(tMin, std::min(tMax, t));
         }
     }
-    if (hit) *tHit = best;
+    if (hit && tHit) *tHit = best;
+    if (clearance && touched && clearanceKnown) {
+        clearance->distance = clearanceMin;
+        clearance->at = clearanceAt;
+    }
     return hit;
 }
 

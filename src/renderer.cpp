@@ -129,7 +129,18 @@ struct Hit {
     Vec3 point{0.0};
     Vec3 normal{0.0};
     Rgb albedo{0.0};
+    double distance = 0.0;  // along the viewing ray
 };
+
+// Whether two horizontally adjacent hits may share a span: the same object and, since G is
+// interpolated along a span, the same smooth piece of it. A crease (a box edge: the normal
+// turns by more than ~30 degrees between neighbours) or a jump in depth (one part of an object
+// seen in front of another) ends the span; breaking one costs rays, never accuracy.
+bool continuesSpan(const Hit& a, const Hit& b) {
+    if (a.object != b.object || a.object < 0) return false;
+    if (glm::dot(a.normal, b.normal) < 0.866) return false;
+    return std::abs(a.distance - b.distance) <= 0.1 * std::min(a.distance, b.distance);
+}
 
 struct PixelSum {
     Rgb irradiance{0.0};  // sum over lights of radiance x F
@@ -197,6 +208,7 @@ Hit castViewingRay(const Context& ctx, ThreadState& ts, int x, int y) {
             best = t;
             hit.object = int(i);
             hit.point = ray.at(t);
+            hit.distance = t;
             hit.normal = denom < 0.0 ? n : -n;  // planes are two-sided: face the viewer
             hit.albedo = planeAlbedo(planes[i], hit.point);
         }
@@ -214,6 +226,7 @@ Hit castViewingRay(const Context& ctx, ThreadState& ts, int x, int y) {
             best = t0 + tHit;
             hit.object = int(planes.size() + i);
             hit.point = ray.at(best);
+            hit.distance = best;
             hit.normal = surfaceNormal(ctx.occluder.shape(i), hit.point);
             hit.albedo = ctx.scene.obstacles[i].albedo;
         }
@@ -242,6 +255,11 @@ bool uniformPattern(const std::vector<uint8_t>& p) {
 }
 
 class SpanShader {
+    // Per-pixel state within a span, for one light.
+    static constexpr uint8_t kDark = 0;        // the light is behind or below the horizon: F = 0
+    static constexpr uint8_t kNeedsRays = 1;   // some candidate may shadow it
+    static constexpr uint8_t kClosedForm = 2;  // no candidate in its shaft: closed form
+
 public:
     SpanShader(const Context& ctx, ThreadState& ts, const RectLight& light)
         : mCtx(ctx), mTs(ts), mLight(light), mSettings(ctx.settings) {}
@@ -252,10 +270,10 @@ public:
         ++st.spans;
         Box3 spanBox;
         int litCount = 0;
-        mTs.lit.assign(size_t(x1 - x0 + 1), 0);
+        mTs.lit.assign(size_t(x1 - x0 + 1), kDark);
         for (int x = x0; x <= x1; ++x) {
             if (seesLight(mLight, receiver(x))) {
-                mTs.lit[size_t(x - x0)] = 1;
+                mTs.lit[size_t(x - x0)] = kNeedsRays;
                 spanBox.extend(mTs.hits[size_t(x)].point);
                 ++litCount;
             }
@@ -268,9 +286,9 @@ public:
 
         auto& cand = mTs.candidates;
         cand.clear();
+        Box3 lightBox;
+        for (const Vec3& c : mLight.polygon()) lightBox.extend(c);
         if (mSettings.shaftCulling) {
-            Box3 lightBox;
-            for (const Vec3& c : mLight.polygon()) lightBox.extend(c);
             Shaft shaft(spanBox, lightBox);
             for (size_t i = 0; i < mCtx.occluder.size(); ++i) {
                 if (shaft.overlaps(mCtx.occluder.bounds(i))) cand.push_back(uint32_t(i));
@@ -278,30 +296,44 @@ public:
         } else {
             for (size_t i = 0; i < mCtx.occluder.size(); ++i) cand.push_back(uint32_t(i));
         }
+        if (cand.empty()) ++st.culledSpans;
 
-        if (cand.empty()) {
-            ++st.culledSpans;
-            for (int x = x0; x <= x1; ++x) {
-                if (!mTs.lit[size_t(x - x0)]) continue;
-                Receiver r = receiver(x);
-                Vec3 grad(0.0);
-                if (mSettings.aci.gradient) grad = gradientOf(unoccludedG(mLight, r).dg, r.normal);
-                store(x, unoccludedFormFactor(mLight, r), grad);
-                ++st.closedFormPixels;
+        // The span's shaft is as wide as the span; each pixel's own shaft (its ray origins to
+        // the light) is narrower. A pixel whose shaft meets no candidate is unshadowed: the
+        // closed form is then exactly what ACI would find, without a ray.
+        for (int x = x0; x <= x1; ++x) {
+            uint8_t& state = mTs.lit[size_t(x - x0)];
+            if (state != kNeedsRays) continue;
+            bool open = cand.empty();
+            if (!open && mSettings.shaftCulling) {
+                Box3 origin;
+                origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
+                origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
+                Shaft pixelShaft(origin, lightBox);
+                open = std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
+                    return pixelShaft.overlaps(mCtx.occluder.bounds(i));
+                });
             }
-            return;
+            if (!open) continue;
+            state = kClosedForm;
+            Receiver r = receiver(x);
+            Vec3 grad(0.0);
+            if (mSettings.aci.gradient) grad = gradientOf(unoccludedG(mLight, r).dg, r.normal);
+            store(x, unoccludedFormFactor(mLight, r), grad);
+            ++st.closedFormPixels;
         }
+        if (cand.empty()) return;
 
         mTs.shadow.restrictTo(&cand);
         mGrid = mSettings.aci.grid;  // the adaptive density starts afresh on every span
         int x = x0;
         while (x <= x1) {
-            if (!mTs.lit[size_t(x - x0)]) {
+            if (mTs.lit[size_t(x - x0)] != kNeedsRays) {
                 ++x;
                 continue;
             }
             int end = x;
-            while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)]) ++end;
+            while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)] == kNeedsRays) ++end;
             shadeRun(x, end);
             x = end + 1;
         }
@@ -352,11 +384,11 @@ private:
             int base = mSettings.aci.grid, top = base * mSettings.maxGridFactor;
             if (e.counts.maxDepth >= 2 || e.counts.restarts > 0) {
                 if (mGrid < top) {
-                    mGrid = std::min(top, 2 * mGrid);
+                    mGrid = std::min(top, mGrid + 1);
                     ++st.gridIncreases;
                 }
             } else if (e.counts.maxDepth == 0 && mGrid > base) {
-                mGrid = std::max(base, mGrid / 2);
+                mGrid = std::max(base, mGrid - 1);
                 ++st.gridDecreases;
             }
         }
@@ -398,18 +430,26 @@ private:
                 continue;
             }
             int k = x + 1;
-            while (k < x1 && pattern(k, a.grid) == a.pattern) ++k;
-            // k is the pixel where the pattern changed, or the run's last pixel.
-            Sample mid;
-            int m = (x + k) / 2;
-            if (k - x >= 2) mid = exact(m);  // before k, so that k's result sets the density
-            Sample b = exact(k);
-            for (int i = x + 1; i < k; ++i) {
-                if (i == m) continue;
-                interpolate(i, x, a, m, mid, k, b);
+            while (k <= x1 && pattern(k, a.grid) == a.pattern) ++k;
+            // Pixels x .. k-1 share the anchor's pattern; k (if inside the run) is where it
+            // changed. Interpolation stays within the constant pattern: its far end e = k - 1
+            // gets a full evaluation, and so does the middle pixel when there is one.
+            int e = k - 1;
+            if (e > x) {
+                Sample mid;
+                int m = (x + e) / 2;
+                if (e - x >= 2) mid = exact(m);
+                Sample b = exact(e);
+                for (int i = x + 1; i < e; ++i) {
+                    if (i != m) interpolate(i, x, a, m, mid, e, b);
+                }
+                a = std::move(b);
+                x = e;
             }
-            x = k;
-            a = std::move(b);
+            if (k <= x1) {
+                a = exact(k);  // the new anchor, where the pattern changed
+                x = k;
+            }
         }
     }
 
@@ -458,14 +498,13 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
         // Section 5: spans of adjacent pixels on one object, at most maxSpan long.
         int x = 0;
         while (x < width) {
-            int object = ts.hits[size_t(x)].object;
-            if (object < 0) {
+            if (ts.hits[size_t(x)].object < 0) {
                 ++x;
                 continue;
             }
             int end = x;
             while (end + 1 < width && end + 1 - x < settings.maxSpan &&
-                   ts.hits[size_t(end + 1)].object == object) {
+                   continuesSpan(ts.hits[size_t(end)], ts.hits[size_t(end + 1)])) {
                 ++end;
             }
             shader.shadeSpan(x, end);

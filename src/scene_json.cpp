@@ -5,23 +5,20 @@
 // are spent voxelizing the first one: (1) parse and validate the whole document into plans,
 // (2) estimate the memory of every level set to be built and refuse the scene when over the
 // limit, (3) build the level sets and read the .vdb files.
-#include "penumbra/scene.h"
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <limits>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
 #include <variant>
 
-#include <nlohmann/json.hpp>
-
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
+#include "penumbra/scene.h"
 
 namespace penumbra {
 
@@ -32,10 +29,13 @@ using Json = nlohmann::json;
 constexpr int kMaxImageSide = 32768;
 constexpr double kDefaultMemoryLimitGiB = 16.0;
 constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
-// Measured on OpenVDB 10 level sets built by makeSphereLevelSet / makeBoxLevelSet with a half
-// width of 3 voxels: grid.memUsage() / activeVoxelCount() is 8-12 bytes (each 8^3 leaf stores
-// every value densely while the band fills only part of it). Rounded up: the estimate guards
-// against absurd requests, it need not be tight.
+// Bytes per active voxel of a level-set tree, for the memory estimate. Measured with
+// describe().bytes / activeVoxels on OpenVDB 10 spheres and boxes of half width 3: 18.5 and
+// 13.6 bytes for 0.19 M and 0.75 M voxels, falling as grids grow because the fixed cost of the
+// upper tree nodes (~3.5 MB) is shared by more leaves. The large-grid limit is about 9-11 bytes
+// (each 8^3 leaf stores 512 floats while the band fills only part of it), and grids large enough
+// to matter are in that regime; 12 leaves a margin. The estimate guards against absurd
+// requests, it need not be tight.
 constexpr double kBytesPerBandVoxel = 12.0;
 // OpenVDB index coordinates are int32 and createLevelSetSphere works in float voxel units;
 // keep geometry well inside both ranges.
@@ -50,10 +50,9 @@ constexpr double kMinEdgeSine = 1e-9;
 
 /// Makes user-supplied text safe for a one-line message: control characters escaped, long
 /// strings cut.
-std::string printable(const std::string& s) {
-    constexpr size_t kMaxLen = 60;
+std::string printable(const std::string& s, size_t maxLen = 60) {
     std::string out;
-    for (size_t i = 0; i < s.size() && i < kMaxLen; ++i) {
+    for (size_t i = 0; i < s.size() && i < maxLen; ++i) {
         const unsigned char c = static_cast<unsigned char>(s[i]);
         if (c == '\n') {
             out += "\\n";
@@ -67,7 +66,7 @@ std::string printable(const std::string& s) {
             out += char(c);
         }
     }
-    if (s.size() > kMaxLen) out += "...";
+    if (s.size() > maxLen) out += "...";
     return out;
 }
 
@@ -140,15 +139,22 @@ std::string suggestion(const std::string& word, const std::vector<std::string>& 
 /// The JSON type as a user reads it in "expected X, got Y".
 std::string typeName(const Json& v) {
     switch (v.type()) {
-        case Json::value_t::null: return "null";
-        case Json::value_t::boolean: return "boolean";
-        case Json::value_t::string: return "string";
-        case Json::value_t::array: return "an array of " + std::to_string(v.size());
-        case Json::value_t::object: return "object";
+        case Json::value_t::null:
+            return "null";
+        case Json::value_t::boolean:
+            return "boolean";
+        case Json::value_t::string:
+            return "string";
+        case Json::value_t::array:
+            return "an array of " + std::to_string(v.size());
+        case Json::value_t::object:
+            return "object";
         case Json::value_t::number_integer:
         case Json::value_t::number_unsigned:
-        case Json::value_t::number_float: return "number";
-        default: return "unsupported value";
+        case Json::value_t::number_float:
+            return "number";
+        default:
+            return "unsupported value";
     }
 }
 
@@ -156,6 +162,8 @@ std::string typeName(const Json& v) {
 std::string numberText(double x) {
     if (std::isnan(x)) return "nan";
     if (std::isinf(x)) return x > 0 ? "inf" : "-inf";
+    // Whole numbers without nlohmann's trailing ".0": "must be > 0", as the user would write.
+    if (x == std::floor(x) && std::fabs(x) < 1e15) return std::to_string(static_cast<long long>(x));
     return Json(x).dump();
 }
 
@@ -188,7 +196,7 @@ struct Context {
 };
 
 class Node {
-public:
+  public:
     Node(const Json& value, std::string pointer, const Context& ctx)
         : mValue(&value), mPointer(std::move(pointer)), mCtx(&ctx) {}
 
@@ -275,7 +283,7 @@ public:
         return d / len;
     }
 
-private:
+  private:
     const Json* mValue;
     std::string mPointer;
     const Context* mCtx;
@@ -283,16 +291,15 @@ private:
 
 /// An object whose keys must all belong to `allowed`; gives typed access to its fields.
 class Object {
-public:
+  public:
     Object(const Node& node, std::vector<std::string> allowed)
         : mNode(node), mAllowed(std::move(allowed)) {
         if (!node.json().is_object()) node.fail("expected an object, got " + typeName(node.json()));
         for (const auto& item : node.json().items()) {
             if (std::find(mAllowed.begin(), mAllowed.end(), item.key()) == mAllowed.end()) {
-                throw InputError(node.context().file,
-                                 node.pointer() + "/" + pointerToken(item.key()),
-                                 "unknown key " + inQuotes(item.key()) +
-                                     suggestion(item.key(), mAllowed));
+                throw InputError(
+                    node.context().file, node.pointer() + "/" + pointerToken(item.key()),
+                    "unknown key " + inQuotes(item.key()) + suggestion(item.key(), mAllowed));
             }
         }
     }
@@ -310,14 +317,6 @@ public:
         return Node(*it, ptr, mNode.context());
     }
 
-    std::optional<Node> optional(const std::string& key) const {
-        if (!has(key)) return std::nullopt;
-        return at(key);
-    }
-
-    double number(const std::string& key, double fallback) const {
-        return has(key) ? at(key).number() : fallback;
-    }
     double numberAbove(const std::string& key, double lo, double fallback) const {
         return has(key) ? at(key).numberAbove(lo) : fallback;
     }
@@ -343,7 +342,7 @@ public:
         return k;
     }
 
-private:
+  private:
     Node mNode;
     std::vector<std::string> mAllowed;
 };
@@ -354,7 +353,7 @@ private:
 // that duplicates and out-of-range numbers (1e400) can be reported by pointer too.
 
 class PathTracker {
-public:
+  public:
     struct DuplicateKey {
         std::string pointer;
         std::string key;
@@ -362,8 +361,12 @@ public:
 
     bool operator()(int /*depth*/, Json::parse_event_t event, Json& parsed) {
         switch (event) {
-            case Json::parse_event_t::object_start: mFrames.emplace_back(true); break;
-            case Json::parse_event_t::array_start: mFrames.emplace_back(false); break;
+            case Json::parse_event_t::object_start:
+                mFrames.emplace_back(true);
+                break;
+            case Json::parse_event_t::array_start:
+                mFrames.emplace_back(false);
+                break;
             case Json::parse_event_t::key: {
                 Frame& f = mFrames.back();
                 f.key = parsed.get<std::string>();
@@ -376,7 +379,9 @@ public:
                 mFrames.pop_back();
                 childDone();
                 break;
-            case Json::parse_event_t::value: childDone(); break;
+            case Json::parse_event_t::value:
+                childDone();
+                break;
         }
         return true;
     }
@@ -395,7 +400,7 @@ public:
         return p;
     }
 
-private:
+  private:
     struct Frame {
         explicit Frame(bool object) : isObject(object) {}
         bool isObject;
@@ -453,11 +458,12 @@ Json parseText(const std::string& text, const std::string& file) {
         const auto [line, column] = lineColumn(text, e.byte);
         throw InputError(file, "",
                          "malformed JSON at line " + std::to_string(line) + ", column " +
-                             std::to_string(column) + ": " + printable(nlohmannReason(e.what())));
+                             std::to_string(column) + ": " +
+                             printable(nlohmannReason(e.what()), 300));
     } catch (const Json::exception& e) {
         // out_of_range.406: a number too large for a double, e.g. 1e400.
         throw InputError(file, tracker.pointer(),
-                         printable(nlohmannReason(e.what())) + " (numbers must be finite)");
+                         printable(nlohmannReason(e.what()), 300) + " (numbers must be finite)");
     }
 }
 
@@ -482,8 +488,8 @@ using ShapePlan =
 
 struct ObstaclePlan {
     std::string pointer;
-    std::string name;      ///< empty: derive (obstacle_K, or the grid names of a .vdb)
-    size_t index;          ///< position in the "obstacles" array
+    std::string name;  ///< empty: derive (obstacle_K, or the grid names of a .vdb)
+    size_t index;      ///< position in the "obstacles" array
     Rgb albedo{0.8};
     ShapePlan shape;
 };
@@ -513,13 +519,15 @@ Camera parseCamera(const Node& node) {
     const double scale = std::max(glm::length(cam.eye), glm::length(cam.lookAt));
     if (!(viewLen > 1e-12 * scale)) {
         throw InputError(node.context().file, obj.pointer() + "/look_at",
-                         "must differ from eye, both are " + vecText(cam.eye));
+                         "must differ from eye (eye " + vecText(cam.eye) + ", look_at " +
+                             vecText(cam.lookAt) + ")");
     }
-    const double upLen = glm::length(cam.up);  // 1 unless "up" was omitted with a default
-    if (glm::length(glm::cross(view / viewLen, cam.up / upLen)) < 1e-9) {
-        throw InputError(node.context().file, obj.pointer() + "/up",
-                         "is parallel to the viewing direction (look_at - eye = " +
-                             vecText(view) + ")");
+    // Both unit vectors here: |cross| is the sine of the angle between them.
+    if (glm::length(glm::cross(view / viewLen, cam.up)) < 1e-9) {
+        throw InputError(
+            node.context().file, obj.pointer() + "/up",
+            std::string(obj.has("up") ? "is" : "(default [0, 0, 1]) is") +
+                " parallel to the viewing direction (look_at - eye = " + vecText(view) + ")");
     }
     return cam;
 }
@@ -528,8 +536,8 @@ RectLight parseLight(const Node& node, size_t index) {
     const Object obj(node, {"name", "type", "corner", "edge_u", "edge_v", "radiance"});
     obj.kind("light", {"rect"}, "rect");
     RectLight light;
-    light.name = obj.has("name") ? obj.at("name").nonEmptyString()
-                                 : "light_" + std::to_string(index);
+    light.name =
+        obj.has("name") ? obj.at("name").nonEmptyString() : "light_" + std::to_string(index);
     light.corner = obj.at("corner").vec3();
     light.edgeU = obj.at("edge_u").vec3();
     light.edgeV = obj.at("edge_v").vec3();
@@ -539,8 +547,8 @@ RectLight parseLight(const Node& node, size_t index) {
     const double lenProduct = glm::length(light.edgeU) * glm::length(light.edgeV);
     if (!(area > kMinEdgeSine * lenProduct) || !(area > 0.0) || !std::isfinite(area)) {
         obj.node().fail("degenerate rectangle: edge_u " + vecText(light.edgeU) + " and edge_v " +
-                        vecText(light.edgeV) + " are parallel or zero (area " +
-                        numberText(area) + ")");
+                        vecText(light.edgeV) + " are parallel or zero (area " + numberText(area) +
+                        ")");
     }
     return light;
 }
@@ -570,8 +578,8 @@ PlaneReceiver parseReceiver(const Node& node) {
 void checkVoxelization(const Object& obj, const std::string& sizeKey, double smallestExtent,
                        double largestCoordinate, double voxelSize) {
     if (smallestExtent < kMinFeatureVoxels * voxelSize) {
-        obj.at(sizeKey).fail("is below " + numberText(kMinFeatureVoxels) +
-                             " voxels (voxel_size " + numberText(voxelSize) +
+        obj.at(sizeKey).fail("is below " + numberText(kMinFeatureVoxels) + " voxels (voxel_size " +
+                             numberText(voxelSize) +
                              "): the level set would be empty or wrong; lower voxel_size or "
                              "set \"analytic\": true");
     }
@@ -641,7 +649,7 @@ ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSetting
     if (obj.has("half_width")) {
         halfWidth = obj.at("half_width").numberAbove(1.0);
     }
-    const double farthest = glm::length(glm::abs(center));
+    const double farthest = glm::length(center);
 
     if (kind == "sphere") {
         const double radius = obj.at("radius").numberAbove(0.0);
@@ -711,19 +719,17 @@ void checkMemory(const std::vector<ObstaclePlan>& plans, const MemoryBudget& bud
     for (const ObstaclePlan& p : plans) {
         if (estimatedBytes(p.shape) > estimatedBytes(worst->shape)) worst = &p;
     }
-    throw InputError(file, worst->pointer,
-                     "would need ~" + bytesText(estimatedBytes(worst->shape)) +
-                         " for its level set (~" + bytesText(total) +
-                         " for all implicit obstacles, over the limit of " +
-                         bytesText(budget.limitBytes) +
-                         "); raise voxel_size or level_set.max_memory_gib");
+    throw InputError(
+        file, worst->pointer,
+        "would need ~" + bytesText(estimatedBytes(worst->shape)) + " for its level set (~" +
+            bytesText(total) + " for all implicit obstacles, over the limit of " +
+            bytesText(budget.limitBytes) + "); raise voxel_size or level_set.max_memory_gib");
 }
 
 // ---------------------------------------------------------------------------------------------
 // Pass 3: building
 
-void buildObstacles(const ObstaclePlan& plan, const std::string& file,
-                    std::vector<Obstacle>& out) {
+void buildObstacles(const ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out) {
     const std::string name =
         plan.name.empty() ? "obstacle_" + std::to_string(plan.index) : plan.name;
     auto add = [&](std::string n, ObstacleShape shape) {
@@ -747,13 +753,17 @@ void buildObstacles(const ObstaclePlan& plan, const std::string& file,
             throw InputError(file, e.where().empty() ? plan.pointer : e.where(),
                              e.file() + ": " + e.message());
         }
-        for (const LevelSetPtr& g : grids) {
+        for (size_t j = 0; j < grids.size(); ++j) {
+            const LevelSetPtr& g = grids[j];
             const std::string gridName = describe(*g).name;
+            // One grid takes the obstacle's name; several are told apart by their grid names.
             std::string n;
             if (grids.size() == 1) {
                 n = !plan.name.empty() ? plan.name : (!gridName.empty() ? gridName : name);
+            } else if (!plan.name.empty()) {
+                n = plan.name + "/" + (gridName.empty() ? std::to_string(j) : gridName);
             } else {
-                n = (plan.name.empty() ? name : plan.name) + "/" + gridName;
+                n = !gridName.empty() ? gridName : name + "/" + std::to_string(j);
             }
             add(n, g);
         }
@@ -817,6 +827,10 @@ Scene parseScene(const std::string& jsonText, const std::string& file, const std
 }
 
 Scene loadScene(const std::string& path) {
+    std::error_code ec;
+    if (std::filesystem::is_directory(path, ec)) {
+        throw InputError(path, "", "is a directory, not a scene file");
+    }
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path, "", "cannot open the scene file");
     std::ostringstream text;
@@ -845,7 +859,8 @@ size_t Scene::lightIndex(const std::string& name) const {
     if (matches.empty()) {
         std::vector<std::string> all;
         for (const RectLight& l : lights) all.push_back(l.name);
-        throw InputError(file, "/lights", "no light named " + inQuotes(name) + suggestion(name, all));
+        throw InputError(file, "/lights",
+                         "no light named " + inQuotes(name) + suggestion(name, all));
     }
     throw InputError(file, "/lights",
                      std::to_string(matches.size()) + " lights are named " + inQuotes(name) +

@@ -150,8 +150,8 @@ inline void trigRoots(double A, double B, double C, std::vector<double>& out) {
 /// consecutive roots is classified by its midpoint. This covers the cap inside Q (full circle,
 /// no edge pieces), Q inside the cap (full edges, no circle arcs) and disjoint sets uniformly.
 inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& corner,
-                                     const Vec3& edgeU, const Vec3& edgeV,
-                                     const Vec3& sphereCenter, double radius) {
+                                     const Vec3& edgeU, const Vec3& edgeV, const Vec3& sphereCenter,
+                                     double radius) {
     requireLightAboveHorizon(m, n, corner, edgeU, edgeV);
     require(radius > 0.0, "sphereShadowFormFactor: radius must be > 0");
     const Vec3 toCenter = sphereCenter - m;
@@ -209,10 +209,10 @@ inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& c
         const double t1 = k + 1 < cuts.size() ? cuts[k + 1] : cuts[0] + kTwoPi;
         if (t1 <= t0) continue;
         if (!insideQ(capPoint(0.5 * (t0 + t1)))) continue;
-        const Vec3 integral = sinAlpha * sinAlpha * (t1 - t0) * a -
-                              sinAlpha * cosAlpha *
-                                  ((std::sin(t1) - std::sin(t0)) * e1 +
-                                   (std::cos(t0) - std::cos(t1)) * e2);
+        const Vec3 integral =
+            sinAlpha * sinAlpha * (t1 - t0) * a -
+            sinAlpha * cosAlpha *
+                ((std::sin(t1) - std::sin(t0)) * e1 + (std::cos(t0) - std::cos(t1)) * e2);
         hidden += glm::dot(integral, n);
     }
     // Great-circle edge pieces inside the cap: p(s) = q_i cos s + w sin s, s in [0, beta_i].
@@ -236,8 +236,7 @@ inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& c
 }
 
 /// True when the open segment M-P misses the (closed) ball.
-inline bool segmentMissesSphere(const Vec3& m, const Vec3& p, const Vec3& center,
-                                double radius) {
+inline bool segmentMissesSphere(const Vec3& m, const Vec3& p, const Vec3& center, double radius) {
     const Vec3 d = p - m;
     const double t = std::clamp(glm::dot(center - m, d) / glm::dot(d, d), 0.0, 1.0);
     const Vec3 closest = m + t * d;
@@ -323,15 +322,14 @@ inline double convexPolyhedronShadowFormFactor(const Vec3& m, const Vec3& n, con
     shadow = clipHalfPlane(shadow, Vec2(0, 1), 1.0);
     std::vector<Vec3> shadow3;
     for (const Vec2& p : shadow) shadow3.push_back(corner + p.x * edgeU + p.y * edgeV);
-    return lambertPolygon(lightPolygon(corner, edgeU, edgeV), m, n) -
-           lambertPolygon(shadow3, m, n);
+    return lambertPolygon(lightPolygon(corner, edgeU, edgeV), m, n) - lambertPolygon(shadow3, m, n);
 }
 
 /// Convex polyhedron as an intersection of half-spaces, built from its vertices by brute force
 /// (every vertex triple whose plane has all vertices on one side is a face plane): a
 /// visibility test for numericFormFactor that shares nothing with the projection method.
 class ConvexPolyhedron {
-public:
+  public:
     explicit ConvexPolyhedron(const std::vector<Vec3>& vertices) {
         const size_t nv = vertices.size();
         double scale = 0.0;
@@ -386,7 +384,7 @@ public:
         return r;
     }
 
-private:
+  private:
     std::vector<Vec3> mNormals;
     std::vector<double> mOffsets;
 };
@@ -417,7 +415,7 @@ double numericFormFactor(const Vec3& m, const Vec3& n, const Vec3& corner, const
             const Vec3 p = corner + s * edgeU + t * edgeV;
             const Vec3 r = p - m;
             const double r2 = glm::dot(r, r);
-            const double c1 = glm::dot(r, n);          // |r| cos1
+            const double c1 = glm::dot(r, n);             // |r| cos1
             const double c2 = -glm::dot(r, lightNormal);  // |r| cos2
             if (c1 <= 0.0 || c2 <= 0.0) continue;
             if (!visible(p)) continue;

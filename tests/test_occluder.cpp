@@ -1,19 +1,18 @@
 // Tests for occluder.h and level_set.h: analytic hits are exact, level-set hits agree with the
 // analytic sphere within a stated fraction of a voxel, and .vdb input is validated.
-#include <catch2/catch.hpp>
+#include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetUtil.h>
+#include <tbb/parallel_for.h>
 
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <string>
 #include <vector>
-
-#include <openvdb/io/File.h>
-#include <openvdb/openvdb.h>
-#include <openvdb/tools/LevelSetUtil.h>
-#include <tbb/parallel_for.h>
 
 #include "level_set_impl.h"
 #include "penumbra/error.h"
@@ -74,8 +73,7 @@ openvdb::FloatGrid::Ptr sphereGridCopy() {
 
 }  // namespace
 
-TEST_CASE("analytic sphere hits are exact, end points excluded, grazing counts",
-          "[occluder]") {
+TEST_CASE("analytic sphere hits are exact, end points excluded, grazing counts", "[occluder]") {
     Occluder occ({AnalyticSphere{Vec3(0.0), 1.0}});
     auto q = occ.makeQuery();
     double t = -1.0;
@@ -119,20 +117,20 @@ TEST_CASE("analytic box hits are exact (slab test)", "[occluder]") {
     REQUIRE(q.occluded(Vec3(1, 0, -5), Vec3(1, 0, 5), &t));
     CHECK(t == Approx(2.0).margin(1e-12));
     CHECK_FALSE(q.occluded(Vec3(1.01, 0, -5), Vec3(1.01, 0, 5)));
-    CHECK_FALSE(q.occluded(Vec3(0, 0, -5), Vec3(0, 0, -3)));   // ends on the face
-    CHECK_FALSE(q.occluded(Vec3(0, 0, 3), Vec3(0, 0, 5)));     // leaves the face
-    REQUIRE(q.occluded(Vec3(0, 0, 0), Vec3(0, 0, 5), &t));     // starts inside
+    CHECK_FALSE(q.occluded(Vec3(0, 0, -5), Vec3(0, 0, -3)));  // ends on the face
+    CHECK_FALSE(q.occluded(Vec3(0, 0, 3), Vec3(0, 0, 5)));    // leaves the face
+    REQUIRE(q.occluded(Vec3(0, 0, 0), Vec3(0, 0, 5), &t));    // starts inside
     CHECK(t == 0.0);
 }
 
-TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxel",
-          "[occluder]") {
-    // Tolerance: the grid stores the exact distance |x - c| - r at voxel centres (as floats),
-    // trilinear interpolation of that function errs by at most ~3h^2/(8r) = 0.0075 voxel here,
-    // and the marcher's linear root search between samples <= sqrt(3) voxels apart adds an
-    // error of the same order. Along the ray the error grows as 1/cos(incidence); aiming rays
-    // within 0.8 r of the centre keeps cos >= 0.6. 0.25 voxel leaves a wide margin above the
-    // worst error seen (printed below) while still catching an off-by-half-voxel shift.
+TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxel", "[occluder]") {
+    // Tolerance: the grid holds the exact distance |x - c| - r at voxel centres, and its
+    // trilinear interpolation errs by only ~3h^2/(8r) = 0.0075 voxel. The larger error is the
+    // marcher's: it finds the root by one secant step between samples at voxel exits, and the
+    // first sample may be a clamped band value (3 voxels) up to ~2 voxels before the crossing.
+    // That error grows as 1/cos(incidence); aiming within 0.8 r keeps cos >= 0.6, and the
+    // worst error seen is ~0.1 voxel (printed below). 0.25 voxel keeps a margin of 2.5 while
+    // still catching a half-voxel shift (cell-corner vs voxel-centre convention).
     LevelSetPtr ls = makeSphereLevelSet(kCenter, kRadius, kVoxel, 3.0);
     Occluder occ({ls});
     auto q = occ.makeQuery();
@@ -146,8 +144,8 @@ TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxe
         // The line through `aim` along `dir` passes exactly `offset` from the centre: inside
         // 0.8 r (certain hit) or beyond 1.1 r (certain miss), never in between.
         const bool aimHit = i % 2 == 0;
-        const double offset = aimHit ? 0.8 * kRadius * std::sqrt(u(rng))
-                                     : (1.1 + 0.5 * u(rng)) * kRadius;
+        const double offset =
+            aimHit ? 0.8 * kRadius * std::sqrt(u(rng)) : (1.1 + 0.5 * u(rng)) * kRadius;
         const Vec3 dir = randomUnit(rng);
         const Vec3 side = glm::normalize(glm::cross(dir, randomUnit(rng)));
         const Vec3 aim = kCenter + offset * side;
@@ -166,12 +164,11 @@ TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxe
             ++misses;
         }
     }
-    INFO("worst |t - t_exact| = " << worst << " voxel");
+    INFO("worst |t - t_exact| = " << worst << " voxel");  // ~0.10 seen
+    CHECK(worst < 0.25);
     CHECK(hits == kRays / 2);
     CHECK(misses == kRays / 2);
     CHECK(q.raysCast() == uint64_t(kRays));
-    WARN("level-set vs analytic sphere: worst hit error " << worst << " voxel over " << hits
-                                                           << " hits");
 }
 
 TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[occluder]") {
@@ -187,8 +184,7 @@ TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[
         // Fibonacci points cover the sphere evenly, so every grid orientation is visited.
         const double z = 1.0 - 2.0 * (i + 0.5) / kPoints;
         const double phi = i * kPi * (3.0 - std::sqrt(5.0));
-        const Vec3 n(std::sqrt(1 - z * z) * std::cos(phi), std::sqrt(1 - z * z) * std::sin(phi),
-                     z);
+        const Vec3 n(std::sqrt(1 - z * z) * std::cos(phi), std::sqrt(1 - z * z) * std::sin(phi), z);
         const Vec3 from = kCenter + (kRadius + 1.5 * kVoxel) * n;
         // Outward or tangent-ish: dot(d, n) in [0, 1]. Tangent directions never come closer to
         // the centre than the start point does.
@@ -225,15 +221,14 @@ TEST_CASE("level-set occlusion is limited to the segment", "[occluder]") {
     CHECK(t == 0.0);
     // Fully outside, beside the sphere but inside its bounding box: free.
     CHECK_FALSE(q.occluded(Vec3(0.48, 0.48, -0.1), Vec3(0.48, 0.48, 0.1)));
-    CHECK(q.raysCast() == 5);
+    CHECK(q.raysCast() == 4);
 }
 
-TEST_CASE("restrictTo limits the obstacles tested and every call counts a ray",
-          "[occluder]") {
+TEST_CASE("restrictTo limits the obstacles tested and every call counts a ray", "[occluder]") {
     LevelSetPtr ls = makeSphereLevelSet(Vec3(3, 0, 0), 0.5, 0.02, 3.0);
     Occluder occ({AnalyticSphere{Vec3(0, 0, 0), 0.5}, ls});
     auto q = occ.makeQuery();
-    const Vec3 from(0, 0, -2), to(0, 0, 2);  // crosses obstacle 0 only
+    const Vec3 from(0, 0, -2), to(0, 0, 2);    // crosses obstacle 0 only
     const Vec3 from1(3, 0, -2), to1(3, 0, 2);  // crosses obstacle 1 only
     const std::vector<uint32_t> only0{0}, only1{1}, none{};
     CHECK(q.occluded(from, to));
@@ -315,10 +310,14 @@ TEST_CASE("describe reports voxel size, band and bounds", "[occluder]") {
     CHECK(info.name == "ball");
     CHECK(info.voxelSize == Approx(kVoxel).epsilon(1e-6));
     CHECK(info.halfWidth == Approx(3.0).epsilon(1e-5));
-    // Active voxels reach |phi| < 3 voxels, their cells half a voxel further.
+    // Active voxels have |phi| < 3 voxels, so along an axis the outermost voxel centre lies
+    // between 2 and 3 voxels off the surface, and its cell half a voxel further.
+    const double slack = 1e-6;
     for (int a = 0; a < 3; ++a) {
-        CHECK(info.boundsWS.lo[a] == Approx(kCenter[a] - kRadius - 3.5 * kVoxel).margin(kVoxel));
-        CHECK(info.boundsWS.hi[a] == Approx(kCenter[a] + kRadius + 3.5 * kVoxel).margin(kVoxel));
+        CHECK(info.boundsWS.lo[a] >= kCenter[a] - kRadius - 3.5 * kVoxel - slack);
+        CHECK(info.boundsWS.lo[a] <= kCenter[a] - kRadius - 2.5 * kVoxel + slack);
+        CHECK(info.boundsWS.hi[a] <= kCenter[a] + kRadius + 3.5 * kVoxel + slack);
+        CHECK(info.boundsWS.hi[a] >= kCenter[a] + kRadius + 2.5 * kVoxel - slack);
     }
     // A shell 6 voxels thick: 4 pi r^2 * 6h / h^3 voxels.
     const double shell = 4.0 * kPi * kRadius * kRadius * 6.0 * kVoxel / std::pow(kVoxel, 3);
@@ -453,8 +452,8 @@ TEST_CASE("readLevelSets refuses missing, corrupt and unsuitable input", "[occlu
             readLevelSets(file, "", where);  // no level set at all in the file
             FAIL("no exception");
         } catch (const InputError& e) {
-            CHECK_THAT(e.message(), Catch::Contains("no float level-set grid") &&
-                                        Catch::Contains("fog volume"));
+            CHECK_THAT(e.message(),
+                       Catch::Contains("no float level-set grid") && Catch::Contains("fog volume"));
         }
     }
     SECTION("grid of unknown class") {

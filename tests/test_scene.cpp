@@ -1,13 +1,14 @@
 // Tests for the scene loader (scene.h, src/scene_json.cpp): the documented example loads with
 // the values written in it, defaults apply, and every refused input names the file and the
 // exact JSON pointer of the offending value.
-#include <catch2/catch.hpp>
+#include <unistd.h>
 
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
-#include <unistd.h>
 #include <variant>
 
 #include "penumbra/error.h"
@@ -21,12 +22,11 @@ namespace {
 
 /// A fresh directory under the system temp dir, removed with its contents at scope exit.
 class TempDir {
-public:
+  public:
     TempDir() {
         static std::atomic<int> counter{0};
-        mPath = fs::temp_directory_path() /
-                ("penumbra_test_scene_" + std::to_string(::getpid()) + "_" +
-                 std::to_string(counter++));
+        mPath = fs::temp_directory_path() / ("penumbra_test_scene_" + std::to_string(::getpid()) +
+                                             "_" + std::to_string(counter++));
         fs::remove_all(mPath);
         fs::create_directories(mPath);
     }
@@ -42,12 +42,11 @@ public:
         return p.string();
     }
 
-private:
+  private:
     fs::path mPath;
 };
 
-const char* const kLight =
-    R"({"corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0]})";
+const char* const kLight = R"({"corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0]})";
 
 /// A scene with one valid light plus the given top-level members (text after a comma).
 std::string withLight(const std::string& rest) {
@@ -101,8 +100,9 @@ const std::string kExample = R"({
 TEST_CASE("the documented example scene loads with the values written in it", "[scene]") {
     TempDir dir;
     // A 0.4-wide cube centred at (-0.5, 0.5, 0.6), voxel 0.02.
-    writeLevelSets((dir.path() / "cube.vdb").string(),
-                   {makeBoxLevelSet(Vec3(-0.7, 0.3, 0.4), Vec3(-0.3, 0.7, 0.8), 0.02, 3.0, "Cube")});
+    writeLevelSets(
+        (dir.path() / "cube.vdb").string(),
+        {makeBoxLevelSet(Vec3(-0.7, 0.3, 0.4), Vec3(-0.3, 0.7, 0.8), 0.02, 3.0, "Cube")});
     const std::string path = dir.write("scene.json", kExample);
     const Scene scene = loadScene(path);
 
@@ -159,8 +159,8 @@ TEST_CASE("the documented example scene loads with the values written in it", "[
 }
 
 TEST_CASE("omitted fields take their documented defaults", "[scene]") {
-    const Scene scene = parseScene(
-        withLight(R"("obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.25,
+    const Scene scene =
+        parseScene(withLight(R"("obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.25,
                                      "analytic": true},
                                     {"type": "box", "name": "crate", "center": [1,2,3],
                                      "size": [0.2,0.4,0.6], "analytic": true,
@@ -170,7 +170,7 @@ TEST_CASE("omitted fields take their documented defaults", "[scene]") {
                                     "checker": {}},
                                    {"type": "plane", "point": [0,0,0], "normal": [1,0,0],
                                     "checker": {"albedo2": [0.1,0.1,0.1], "scale": 0.5}}])"),
-        "mem.json", "");
+                   "mem.json", "");
     CHECK(scene.file == "mem.json");
     CHECK_FALSE(scene.camera.has_value());
     requireVec(scene.background, 0, 0, 0);
@@ -204,8 +204,8 @@ TEST_CASE("omitted fields take their documented defaults", "[scene]") {
     CHECK(scene.receivers[2].checkerScale == 0.5);
 
     // An empty camera object is the default camera.
-    const Scene withCamera = parseScene(withLight(R"("camera": {}, "background": [0.1,0.2,0.3])"),
-                                        "", "");
+    const Scene withCamera =
+        parseScene(withLight(R"("camera": {}, "background": [0.1,0.2,0.3])"), "", "");
     REQUIRE(withCamera.camera.has_value());
     const Camera def;
     CHECK(withCamera.camera->eye == def.eye);
@@ -216,12 +216,11 @@ TEST_CASE("omitted fields take their documented defaults", "[scene]") {
 }
 
 TEST_CASE("an obstacle's voxel_size overrides the scene's", "[scene]") {
-    const Scene scene = parseScene(
-        withLight(R"("level_set": {"voxel_size": 0.05, "half_width": 2},
+    const Scene scene = parseScene(withLight(R"("level_set": {"voxel_size": 0.05, "half_width": 2},
                      "obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.3},
                                    {"type": "box", "center": [1,0,1], "size": [0.3,0.3,0.3],
                                     "voxel_size": 0.025}])"),
-        "s.json", "");
+                                   "s.json", "");
     REQUIRE(scene.obstacles.size() == 2);
     const LevelSetInfo a = describe(*std::get<LevelSetPtr>(scene.obstacles[0].shape));
     const LevelSetInfo b = describe(*std::get<LevelSetPtr>(scene.obstacles[1].shape));
@@ -239,8 +238,8 @@ TEST_CASE("refused inputs name the file and the exact JSON pointer", "[scene]") 
     SECTION("missing fields") {
         requireRefused(R"({"obstacles": []})", "/lights", "missing required field 'lights'");
         requireRefused(R"({"lights": []})", "/lights", "at least one light");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1]})"),
-                       "/obstacles/0/radius", "missing required field 'radius'");
+        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1]})"), "/obstacles/0/radius",
+                       "missing required field 'radius'");
         requireRefused(obstacle(R"({"center": [0,0,1], "radius": 1})"), "/obstacles/0/type",
                        "missing required field 'type'");
         requireRefused(light(R"({"corner": [0,0,0], "edge_u": [1,0,0]})"), "/lights/0/edge_v",
@@ -334,14 +333,14 @@ TEST_CASE("refused inputs name the file and the exact JSON pointer", "[scene]") 
                        "must be in (0, 180)");
         requireRefused(withLight(R"("camera": {"eye": [1,2,3], "look_at": [1,2,3]})"),
                        "/camera/look_at", "must differ from eye");
-        requireRefused(withLight(R"("camera": {"eye": [0,0,5], "look_at": [0,0,0]})"),
-                       "/camera/up", "parallel to the viewing direction");
-        requireRefused(withLight(R"("camera": {"up": [0,0,0]})"), "/camera/up",
-                       "non-zero vector");
+        requireRefused(withLight(R"("camera": {"eye": [0,0,5], "look_at": [0,0,0]})"), "/camera/up",
+                       "parallel to the viewing direction");
+        requireRefused(withLight(R"("camera": {"up": [0,0,0]})"), "/camera/up", "non-zero vector");
     }
     SECTION("unknown types suggest the nearest valid one") {
         requireRefused(obstacle(R"({"type": "sphre", "center": [0,0,1], "radius": 1})"),
-                       "/obstacles/0/type", "unknown obstacle type 'sphre' (did you mean 'sphere'?)");
+                       "/obstacles/0/type",
+                       "unknown obstacle type 'sphre' (did you mean 'sphere'?)");
         requireRefused(light(R"({"type": "rectangle", "corner": [0,0,0], "edge_u": [1,0,0],
                                  "edge_v": [0,1,0]})"),
                        "/lights/0/type", "unknown light type 'rectangle' (did you mean 'rect'?");
@@ -398,13 +397,13 @@ TEST_CASE("comments are accepted in scene files", "[scene]") {
 
 TEST_CASE("relative .vdb paths resolve against the scene file's directory", "[scene]") {
     TempDir dir;
+    fs::create_directories(dir.path() / "data");
     writeLevelSets((dir.path() / "data" / "two.vdb").string(),
                    {makeSphereLevelSet(Vec3(0, 0, 1), 0.3, 0.05, 3.0, "A"),
                     makeBoxLevelSet(Vec3(1, 1, 0), Vec3(1.5, 1.5, 0.5), 0.05, 3.0, "B")});
     // The scene lives in a sibling directory and points up and across.
     const std::string path = dir.write(
-        "scenes/s.json",
-        withLight(R"("obstacles": [{"type": "vdb", "file": "../data/two.vdb"},
+        "scenes/s.json", withLight(R"("obstacles": [{"type": "vdb", "file": "../data/two.vdb"},
                                    {"type": "vdb", "file": "../data/two.vdb", "name": "pair"},
                                    {"type": "vdb", "file": "../data/two.vdb", "grid": "B",
                                     "name": "just_b", "albedo": [0.5,0.5,0.5]}])"));
@@ -437,8 +436,7 @@ TEST_CASE("relative .vdb paths resolve against the scene file's directory", "[sc
     } catch (const InputError& e) {
         CHECK(e.file() == missing);
         CHECK(e.where() == "/obstacles/0/file");
-        CHECK(e.message().find((dir.path() / "scenes" / "nope.vdb").string()) !=
-              std::string::npos);
+        CHECK(e.message().find((dir.path() / "scenes" / "nope.vdb").string()) != std::string::npos);
     }
 
     // A grid that is not in the file: the scene file and pointer first, the .vdb in the message.
@@ -531,8 +529,7 @@ TEST_CASE("lightIndex picks by name, or the only light, and refuses ambiguity", 
         two.lightIndex("fil");
         FAIL("found a light that does not exist");
     } catch (const InputError& e) {
-        CHECK(e.message().find("no light named 'fil' (did you mean 'fill'?)") !=
-              std::string::npos);
+        CHECK(e.message().find("no light named 'fil' (did you mean 'fill'?)") != std::string::npos);
     }
 
     // The loader refuses duplicate names, but a scene built in code may still have them.
@@ -558,4 +555,42 @@ TEST_CASE("the shipped default scene loads", "[scene]") {
         CHECK(info.activeVoxels > 0);
         CHECK(info.boundsWS.lo.z > 0.0);  // both float above the plane z = 0
     }
+}
+
+TEST_CASE("every JSON example in docs/scene-format.md loads", "[scene]") {
+    std::ifstream in(std::string(PENUMBRA_SOURCE_DIR) + "/docs/scene-format.md");
+    REQUIRE(in);
+    std::vector<std::string> blocks;
+    std::string line, block;
+    bool inside = false;
+    while (std::getline(in, line)) {
+        if (!inside && line == "```json") {
+            inside = true;
+            block.clear();
+        } else if (inside && line == "```") {
+            inside = false;
+            blocks.push_back(block);
+        } else if (inside) {
+            block += line + "\n";
+        }
+    }
+    REQUIRE(blocks.size() == 2);
+    // The first example is the shipped default scene, verbatim.
+    std::ifstream def(std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/default.json");
+    const std::string defText((std::istreambuf_iterator<char>(def)),
+                              std::istreambuf_iterator<char>());
+    CHECK(blocks[0] == defText);
+
+    // The second refers to assets/bunny.vdb with a grid "ls_bunny": provide one.
+    TempDir dir;
+    fs::create_directories(dir.path() / "assets");
+    writeLevelSets((dir.path() / "assets" / "bunny.vdb").string(),
+                   {makeSphereLevelSet(Vec3(-1, 1, 0.5), 0.4, 0.05, 3.0, "ls_bunny")});
+    const Scene scene = parseScene(blocks[1], "doc.json", dir.path().string());
+    CHECK(scene.lights.size() == 2);
+    REQUIRE(scene.obstacles.size() == 3);
+    CHECK(std::holds_alternative<AnalyticSphere>(scene.obstacles[0].shape));
+    CHECK(scene.obstacles[2].name == "ls_bunny");
+    REQUIRE(scene.receivers.size() == 1);
+    CHECK(scene.receivers[0].checker);
 }

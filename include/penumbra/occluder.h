@@ -7,7 +7,9 @@
 /// uses its own Query (it holds OpenVDB value accessors, which must not be shared).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <variant>
 #include <vector>
@@ -28,6 +30,16 @@ struct AnalyticBox {  // axis-aligned
 };
 
 using ObstacleShape = std::variant<AnalyticSphere, AnalyticBox, LevelSetPtr>;
+
+/// What a level set knows beyond yes or no: how far a shadow segment passes from the nearest
+/// surface (distance > 0), or how deep it goes inside (distance < 0), and where (`at`, the
+/// distance from the segment's start). Level sets know distances only inside their narrow band;
+/// beyond it, and for analytic boxes, the clearance is unknown (NaN).
+struct Clearance {
+    double distance = std::numeric_limits<double>::quiet_NaN();
+    double at = 0.0;
+    bool known() const { return std::isfinite(distance); }
+};
 
 class Occluder {
 public:
@@ -65,6 +77,11 @@ public:
     /// null, *tHit is the distance from `from` to the nearest hit point. Grazing rays that touch
     /// the surface count as hits.
     bool occluded(const Vec3& from, const Vec3& to, double* tHit = nullptr);
+
+    /// Same answer, and also the segment's signed clearance against the obstacles whose bounds
+    /// it crosses (the smallest over them; unknown if any of them cannot tell). Level sets are
+    /// sphere-traced along the segment for it, which costs about one more march.
+    bool occluded(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance);
 
     /// Restricts the following queries to the obstacles listed (indices into the Occluder), e.g.
     /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its

@@ -1,0 +1,238 @@
+// `penumbra render SCENE.json -o OUT.exr|OUT.png [...]`: loads the scene, renders it with the
+// library's renderer, writes the picture, the optional AOVs and statistics, and reports progress
+// on stderr. All the work is in the library; this file only translates options.
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <sstream>
+#include <string>
+
+#include "cli/commands.h"
+#include "penumbra/error.h"
+#include "penumbra/image_io.h"
+#include "penumbra/renderer.h"
+#include "penumbra/scene.h"
+
+namespace penumbra::cli {
+
+namespace {
+
+struct RenderOptions {
+    std::string scene;
+    std::string output;
+    std::string method = "aci";
+    int threads = 0;
+    int width = 0;
+    int height = 0;
+    int aciGrid = 2;
+    int aciSteps = 5;
+    int maxSpan = 32;
+    std::string stats;
+    std::string aovRays, aovFormFactor, aovGradient, aovMask;
+    bool quiet = false;
+    const CLI::App* command = nullptr;  // to tell options given from defaults
+    bool given(const char* flag) const { return command && command->count(flag) > 0; }
+};
+
+void requireRange(const std::string& flag, int value, int lo, int hi) {
+    if (value < lo || value > hi) {
+        throw InputError("", flag,
+                         "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                             "], got " + std::to_string(value));
+    }
+}
+
+// Progress on stderr once a render has taken more than a second: rows done, rate, time left.
+// On a terminal one line is rewritten in place; in a log, a line every five seconds.
+class ProgressReporter {
+public:
+    explicit ProgressReporter(bool enabled)
+        : mEnabled(enabled), mTty(::isatty(2) != 0), mStart(Clock::now()) {}
+
+    void update(int done, int total) {
+        if (!mEnabled) return;
+        auto now = Clock::now();
+        double elapsed = seconds(now - mStart);
+        double sinceLast = seconds(now - mLast);
+        if (elapsed < 1.0 || (done < total && sinceLast < (mTty ? 0.25 : 5.0))) return;
+        mLast = now;
+        double rate = done / elapsed;
+        double left = rate > 0.0 ? (total - done) / rate : 0.0;
+        char line[160];
+        std::snprintf(line, sizeof line, "render: %d/%d rows (%3.0f%%), %.1f rows/s, %.0f s left",
+                      done, total, 100.0 * done / total, rate, left);
+        std::cerr << (mTty ? "\r" : "") << line << (mTty ? "\x1b[K" : "\n") << std::flush;
+        mPrinted = true;
+    }
+
+    void finish() {
+        if (mEnabled && mPrinted && mTty) std::cerr << "\n" << std::flush;
+    }
+
+private:
+    using Clock = std::chrono::steady_clock;
+    static double seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+    bool mEnabled, mTty;
+    bool mPrinted = false;
+    Clock::time_point mStart, mLast{};
+};
+
+std::string formatNumber(double v) {
+    std::ostringstream s;
+    s.precision(6);
+    s << v;
+    return s.str();
+}
+
+ImageMetadata metadataFor(const RenderOptions& o, const RenderStats& st) {
+    return {
+        {"ImageDescription", "penumbra render of " + o.scene},
+        {"penumbra:scene", o.scene},
+        {"penumbra:method", st.method},
+        {"penumbra:aci_grid", std::to_string(st.aciGrid)},
+        {"penumbra:aci_steps", std::to_string(st.aciSteps)},
+        {"penumbra:max_span", std::to_string(o.maxSpan)},
+        {"penumbra:threads", std::to_string(st.threads)},
+        {"penumbra:seconds", formatNumber(st.seconds)},
+        {"penumbra:viewing_rays", std::to_string(st.viewingRays)},
+        {"penumbra:viewing_rays_with_shadow_rays", std::to_string(st.viewingRaysWithShadowRays)},
+        {"penumbra:shadow_rays", std::to_string(st.shadowRays)},
+        {"penumbra:shadow_rays_per_viewing_ray", formatNumber(st.shadowRaysPerViewingRay())},
+        {"penumbra:spans", std::to_string(st.spans)},
+        {"penumbra:interpolated_pixels", std::to_string(st.interpolatedPixels)},
+        {"penumbra:aci_evaluations", std::to_string(st.aciEvaluations)},
+        {"penumbra:restarts", std::to_string(st.restarts)},
+    };
+}
+
+float maxOf(const Image& img) {
+    float m = 0.0f;
+    for (float v : img.data) m = std::max(m, v);
+    return m;
+}
+
+// A scalar AOV: raw values in .exr; in .png a heat map (or grey ramp) scaled to the maximum.
+void writeScalarAov(const std::string& path, const std::string& flag, const Image& aov,
+                    bool heat, const ImageMetadata& metadata) {
+    if (imageFormatFor(path, flag) == ImageFormat::Exr) {
+        writeImage(path, aov, metadata, flag);
+        return;
+    }
+    float top = maxOf(aov);
+    if (heat) {
+        writeImage(path, heatMap(aov, top), metadata, flag);
+        return;
+    }
+    Image grey = aov;
+    for (float& v : grey.data) v = top > 0.0f ? v / top : 0.0f;
+    writeImage(path, grey, metadata, flag);
+}
+
+int runRender(const RenderOptions& o) {
+    // Every option is checked before the (possibly slow) scene loading.
+    RenderSettings settings;
+    settings.method = parseMethod(o.method, "--method");
+    // Unset, these take their defaults (every hardware thread, the camera's size); given, they
+    // must be positive.
+    if (o.given("--threads")) requireRange("--threads", o.threads, 1, 1024);
+    if (o.given("--width")) requireRange("--width", o.width, 1, 65536);
+    if (o.given("--height")) requireRange("--height", o.height, 1, 65536);
+    requireRange("--aci-grid", o.aciGrid, 1, 32);
+    requireRange("--aci-steps", o.aciSteps, 1, 12);
+    requireRange("--max-span", o.maxSpan, 1, 4096);
+    if ((long(o.aciGrid) << (o.aciSteps + 1)) > kMaxLatticeUnits) {
+        throw InputError("", "--aci-grid/--aci-steps",
+                         "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
+                             " (the shared sample lattice would not fit in memory)");
+    }
+    imageFormatFor(o.output, "-o");
+    if (!o.aovRays.empty()) imageFormatFor(o.aovRays, "--aov-rays");
+    if (!o.aovFormFactor.empty()) imageFormatFor(o.aovFormFactor, "--aov-ff");
+    if (!o.aovGradient.empty()) imageFormatFor(o.aovGradient, "--aov-gradient");
+    if (!o.aovMask.empty()) imageFormatFor(o.aovMask, "--aov-mask");
+    settings.threads = o.threads;
+    settings.width = o.width;
+    settings.height = o.height;
+    settings.aci.grid = o.aciGrid;
+    settings.aci.steps = o.aciSteps;
+    settings.aci.gradient = !o.aovGradient.empty();
+    settings.maxSpan = o.maxSpan;
+
+    Scene scene = loadScene(o.scene);
+    if (!scene.camera) {
+        throw InputError(o.scene, "/camera", "the scene has no camera, which rendering needs");
+    }
+
+    ProgressReporter reporter(!o.quiet);
+    RenderResult result =
+        render(scene, settings, [&](int done, int total) { reporter.update(done, total); });
+    reporter.finish();
+
+    const RenderStats& st = result.stats;
+    ImageMetadata metadata = metadataFor(o, st);
+    writeImage(o.output, result.color, metadata, "-o");
+    if (!o.aovRays.empty()) {
+        writeScalarAov(o.aovRays, "--aov-rays", result.aovs.shadowRays, true, metadata);
+    }
+    if (!o.aovFormFactor.empty()) {
+        writeScalarAov(o.aovFormFactor, "--aov-ff", result.aovs.formFactor, false, metadata);
+    }
+    if (!o.aovGradient.empty()) {
+        writeScalarAov(o.aovGradient, "--aov-gradient", result.aovs.gradient, true, metadata);
+    }
+    if (!o.aovMask.empty()) {
+        writeScalarAov(o.aovMask, "--aov-mask", result.aovs.mask, false, metadata);
+    }
+    if (!o.stats.empty()) writeStatsJson(o.stats, st);
+
+    if (!o.quiet) {
+        std::printf("penumbra: wrote %s (%dx%d, %s, %d threads, %.2f s): %llu shadow rays, "
+                    "%.2f per viewing ray with shadow rays, %.1f%% of those interpolated\n",
+                    o.output.c_str(), st.width, st.height, st.method.c_str(), st.threads,
+                    st.seconds, static_cast<unsigned long long>(st.shadowRays),
+                    st.shadowRaysPerViewingRay(),
+                    st.viewingRaysWithShadowRays
+                        ? 100.0 * double(st.interpolatedPixels) / double(st.viewingRaysWithShadowRays)
+                        : 0.0);
+    }
+    return 0;
+}
+
+}  // namespace
+
+Runner addRenderCommand(CLI::App& app) {
+    auto o = std::make_shared<RenderOptions>();
+    CLI::App* cmd = app.add_subcommand(
+        "render", "Render a scene's camera view: soft shadows by approximate contour integration");
+    cmd->add_option("scene", o->scene, "Scene file (JSON, see docs/scene-format.md)")->required();
+    cmd->add_option("-o,--output", o->output, "Output image: .exr (linear float) or .png (sRGB)")
+        ->required();
+    cmd->add_option("--method", o->method,
+                    "aci: the section 5 pipeline (shaft culling, shadow-pattern coherence, "
+                    "interpolation); aci-pixel: full ACI at every pixel")
+        ->capture_default_str();
+    cmd->add_option("--threads", o->threads, "Worker threads (default: every hardware thread)");
+    cmd->add_option("--width", o->width, "Image width in pixels (default: the camera's)");
+    cmd->add_option("--height", o->height, "Image height in pixels (default: the camera's)");
+    cmd->add_option("--stats", o->stats, "Write render statistics to this JSON file");
+    cmd->add_option("--aci-grid", o->aciGrid, "First-level grid p: p x p squares on the light")
+        ->capture_default_str();
+    cmd->add_option("--aci-steps", o->aciSteps, "Dichotomy steps n along a crossed side")
+        ->capture_default_str();
+    cmd->add_option("--max-span", o->maxSpan, "Longest span of pixels shaded together")
+        ->capture_default_str();
+    cmd->add_option("--aov-rays", o->aovRays, "Shadow rays per pixel (.png: heat map)");
+    cmd->add_option("--aov-ff", o->aovFormFactor, "Sum of the form factors (.png: scaled grey)");
+    cmd->add_option("--aov-gradient", o->aovGradient,
+                    "Magnitude of the form factor's gradient (.png: heat map)");
+    cmd->add_option("--aov-mask", o->aovMask, "1 where shadow rays were cast, 0 elsewhere");
+    cmd->add_flag("-q,--quiet", o->quiet, "No progress or summary");
+    o->command = cmd;
+    return [o]() { return runRender(*o); };
+}
+
+}  // namespace penumbra::cli
