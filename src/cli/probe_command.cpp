@@ -24,6 +24,7 @@ struct ProbeOptions {
     std::string light;
     int grid = 2;
     int steps = 5;
+    bool distanceGuided = false;
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -63,6 +64,7 @@ int runProbe(const ProbeOptions& opt) {
     AciSettings settings;
     settings.grid = opt.grid;
     settings.steps = opt.steps;
+    settings.distanceGuided = opt.distanceGuided;
     // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
     settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
     ContourIntegrator integrator(settings);
@@ -126,6 +128,9 @@ Runner addProbeCommand(CLI::App& app) {
     sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (0-12)")
         ->check(CLI::Range(0, 12))
         ->capture_default_str();
+    sub->add_flag("--aci-distance-guided", opt->distanceGuided,
+                  "Place dichotomy samples by the secant rule on the obstacles' signed "
+                  "clearance (fewer rays on smooth obstacles; see docs/estimator.md)");
     return [opt] { return runProbe(*opt); };
 }
 

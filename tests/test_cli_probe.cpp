@@ -1,0 +1,137 @@
+// End-to-end tests of `penumbra probe`: the program is run as a user would, with CSV on stdin.
+#include <catch2/catch.hpp>
+
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "exact_shadow.h"
+#include "penumbra/contour_integrator.h"
+
+namespace fs = std::filesystem;
+using namespace penumbra;
+
+namespace {
+
+struct Run {
+    int exitCode;
+    std::string out;
+};
+
+// Runs the program through the shell, stdin from `input`, stderr into `errFile`.
+Run runPenumbra(const std::string& args, const std::string& input, const fs::path& dir) {
+    const fs::path in = dir / "stdin.csv";
+    std::ofstream(in) << input;
+    const std::string cmd = std::string(PENUMBRA_BINARY) + " " + args + " < " + in.string() +
+                            " 2> " + (dir / "stderr.txt").string();
+    FILE* pipe = popen(cmd.c_str(), "r");
+    REQUIRE(pipe);
+    std::string out;
+    char buf[4096];
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
+    const int status = pclose(pipe);
+    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+}
+
+std::string readFile(const fs::path& p) {
+    std::ifstream f(p);
+    std::stringstream ss;
+    ss << f.rdbuf();
+    return ss.str();
+}
+
+fs::path makeTempDir(const std::string& name) {
+    const fs::path dir = fs::temp_directory_path() / ("penumbra_probe_" + name);
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    return dir;
+}
+
+const char* kScene = R"({
+  "lights": [{"name": "key", "corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0],
+              "radiance": [1,1,1]}],
+  "obstacles": [{"type": "sphere", "center": [0.3,0.2,2.0], "radius": 0.7, "analytic": true}],
+  "receivers": [{"type": "plane", "point": [0,0,0], "normal": [0,0,1]}]
+})";
+
+}  // namespace
+
+TEST_CASE("probe answers sensor points in order with the estimator's values", "[cli][probe]") {
+    const fs::path dir = makeTempDir("ok");
+    std::ofstream(dir / "scene.json") << kScene;
+    const std::string input = "x,y,z,nx,ny,nz\n-2.0,0.3,0,0,0,1\n1.2,0.43,0,0,0,2\n0.6,0.4,0,0,0,1\n";
+    const Run run = runPenumbra("probe " + (dir / "scene.json").string(), input, dir);
+    INFO(readFile(dir / "stderr.txt"));
+    REQUIRE(run.exitCode == 0);
+    std::istringstream lines(run.out);
+    std::string line;
+    std::getline(lines, line);
+    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
+
+    RectLight light;
+    light.corner = Vec3(-1, -1, 4);
+    light.edgeU = Vec3(0, 2, 0);
+    light.edgeV = Vec3(2, 0, 0);
+    Occluder occ({AnalyticSphere{Vec3(0.3, 0.2, 2.0), 0.7}});
+    Occluder::Query query = occ.makeQuery();
+    const std::vector<Vec3> points = {Vec3(-2.0, 0.3, 0), Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0)};
+    for (const Vec3& p : points) {
+        REQUIRE(std::getline(lines, line));
+        double v[8];
+        char comma;
+        std::istringstream cells(line);
+        cells >> v[0];
+        for (int i = 1; i < 8; ++i) cells >> comma >> v[i];
+        const Estimate e = contourIntegral({p, Vec3(0, 0, 1)}, light, query, AciSettings{});
+        CHECK(v[0] == Approx(p.x));
+        CHECK(v[3] == Approx(e.formFactor).epsilon(1e-9));
+        CHECK(v[4] == Approx(e.gradient.x).margin(1e-9));
+        CHECK(v[7] == e.counts.shadowRays());
+        // And against the exact shadow, within the estimator's bound (see [aci] tests).
+        const double exactF = exact::sphereShadowFormFactor(p, Vec3(0, 0, 1), light.corner,
+                                                            light.edgeU, light.edgeV,
+                                                            Vec3(0.3, 0.2, 2.0), 0.7);
+        CHECK(std::abs(v[3] - exactF) < 0.0625 * unoccludedFormFactor(light, {p, Vec3(0, 0, 1)}));
+    }
+    CHECK_FALSE(std::getline(lines, line));
+}
+
+TEST_CASE("probe refuses bad input with one line, exit code 2 and no output", "[cli][probe]") {
+    const fs::path dir = makeTempDir("bad");
+    std::ofstream(dir / "scene.json") << kScene;
+    const std::string scene = (dir / "scene.json").string();
+
+    Run run = runPenumbra("probe " + scene, "x,y,z,nx,ny,nz\n0,0,0,0,0,1\n1,2,abc,0,0,1\n", dir);
+    CHECK(run.exitCode == 2);
+    CHECK(run.out.empty());
+    std::string err = readFile(dir / "stderr.txt");
+    CHECK(err.find("line 3, column z") != std::string::npos);
+    CHECK(std::count(err.begin(), err.end(), '\n') == 1);
+
+    run = runPenumbra("probe " + scene, "0,0,0,0,0,0\n", dir);
+    CHECK(run.exitCode == 2);
+    CHECK(run.out.empty());
+    CHECK(readFile(dir / "stderr.txt").find("normal is zero") != std::string::npos);
+
+    run = runPenumbra("probe " + scene + " --light fill", "0,0,0,0,0,1\n", dir);
+    CHECK(run.exitCode == 2);
+    CHECK(run.out.empty());
+
+    run = runPenumbra("probe " + scene + " --aci-steps 99", "0,0,0,0,0,1\n", dir);
+    CHECK(run.exitCode == 2);
+    CHECK(run.out.empty());
+
+    std::ofstream(dir / "broken.json") << R"({"lights": [{"corner": [0,0,1], "edge_u": [1,0,0], "edge_v": [2,0,0]}]})";
+    run = runPenumbra("probe " + (dir / "broken.json").string(), "0,0,0,0,0,1\n", dir);
+    CHECK(run.exitCode == 2);
+    CHECK(run.out.empty());
+    err = readFile(dir / "stderr.txt");
+    CHECK(err.find("broken.json") != std::string::npos);
+    CHECK(err.find("/lights/0") != std::string::npos);
+}
