@@ -13,5 +13,6 @@ using Runner = std::function<int()>;
 
 Runner addProbeCommand(CLI::App& app);
 Runner addRenderCommand(CLI::App& app);
+Runner addBakeCommand(CLI::App& app);
 
 }  // namespace penumbra::cli

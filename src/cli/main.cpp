@@ -16,6 +16,7 @@ int main(int argc, char** argv) {
     std::map<std::string, penumbra::cli::Runner> runners;
     runners["probe"] = penumbra::cli::addProbeCommand(app);
     runners["render"] = penumbra::cli::addRenderCommand(app);
+    runners["bake"] = penumbra::cli::addBakeCommand(app);
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
