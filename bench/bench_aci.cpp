@@ -113,22 +113,26 @@ int main(int argc, char** argv) {
     };
     std::vector<Setting> settings;
     auto add = [&](const std::string& name, int grid, int steps, bool refine,
-                   bool guided = false) {
+                   bool guided = false, bool curved = false, double thrScale = 1.0) {
         AciSettings s;
         s.grid = grid;
         s.steps = steps;
         s.refine = refine;
         s.distanceGuided = guided;
+        s.curvedContour = curved;  // the paper's rows integrate straight chords
+        s.thresholdScale = thrScale;
         s.rayOffset = 1e-6;
         settings.push_back({name, s});
     };
-    add("paper defaults 2x2, n=5", 2, 5, true);
-    add("2x2, n=5, no refinement", 2, 5, false);
-    add("2x2, n=4", 2, 4, true);
-    add("2x2, n=6", 2, 6, true);
-    add("4x4, n=4", 4, 4, true);
-    add("distance-guided 2x2, n=5", 2, 5, true, true);
-    add("distance-guided 2x2, n=6", 2, 6, true, true);
+    // Rows 1-4: the paper's method (straight chords, bisection). Rows 5-7: Penumbra's defaults
+    // and options beyond the paper.
+    add("paper 2x2, n=5", 2, 5, true);
+    add("paper 2x2, n=5, no refine", 2, 5, false);
+    add("paper 2x2, n=6", 2, 6, true);
+    add("paper 4x4, n=4", 4, 4, true);
+    add("default (arcs) 2x2, n=5", 2, 5, true, false, true);
+    add("arcs+guided 2x2, n=5", 2, 5, true, true, true);
+    add("arcs+guided 2x2, n=4", 2, 4, true, true, true);
 
     std::printf("Receiver lines of %d points; light 2 x 2 at height 4; errors relative to the "
                 "unoccluded form factor.\n", count);

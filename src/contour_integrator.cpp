@@ -167,13 +167,13 @@ struct ContourIntegrator::Lattice {
         return v;
     }
 
-    void emit(const Vec3& a, const Vec3& b) {
+    void emit(const Vec3& a, const Vec3& b, double weight = 1.0) {
         if (self.mSettings.gradient) {
             const EdgeDerivative e = edgeGWithDerivative(a - rec.point, b - rec.point);
-            g += e.g;
-            dg += e.dg;
+            g += weight * e.g;
+            dg += weight * e.dg;
         } else {
-            g += edgeG(a - rec.point, b - rec.point);
+            g += weight * edgeG(a - rec.point, b - rec.point);
         }
     }
 
@@ -289,8 +289,22 @@ struct ContourIntegrator::Lattice {
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
-            emit(a.i, z[q].i);
-            emit(z[q].i, b.i);
+            if (self.mSettings.curvedContour) {
+                // Treat X, Z, Y as points of a parabolic arc: the area between the arc and its
+                // chord is the triangle XZY divided by 3 s (1 - s), s being Z's position along
+                // the chord (Archimedes: 4/3 of the triangle when Z is the apex, s = 1/2).
+                const Vec3 chord = b.c - a.c;
+                const double len2 = glm::dot(chord, chord);
+                double sz = len2 > 0.0 ? glm::dot(z[q].c - a.c, chord) / len2 : 0.5;
+                sz = std::clamp(sz, 0.15, 0.85);
+                const double w = 1.0 / (3.0 * sz * (1.0 - sz));
+                emit(a.i, z[q].i, w);
+                emit(z[q].i, b.i, w);
+                emit(a.i, b.i, 1.0 - w);
+            } else {
+                emit(a.i, z[q].i);
+                emit(z[q].i, b.i);
+            }
         }
         // The visible parts of the light's border, joined to the contour by radial junction
         // edges C -> I (zero for the form factor, not for its gradient: Fig. 5).

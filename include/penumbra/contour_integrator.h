@@ -42,6 +42,9 @@ struct AciSettings {
     /// samples by the secant rule and contour vertices by interpolation. Same lattice, same
     /// final interval, fewer rays. Off reproduces the paper's bisection exactly.
     bool distanceGuided = false;
+    /// Beyond the paper: integrate each checked piece X-Z-Y as a parabolic arc through its
+    /// three points instead of two chords (no extra rays; see docs/estimator.md).
+    bool curvedContour = true;
     /// When set, every traced shadow ray's target is appended (tests use it to prove that no
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;

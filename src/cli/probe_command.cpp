@@ -25,6 +25,7 @@ struct ProbeOptions {
     int grid = 2;
     int steps = 5;
     bool distanceGuided = false;
+    bool straightChords = false;
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -65,6 +66,7 @@ int runProbe(const ProbeOptions& opt) {
     settings.grid = opt.grid;
     settings.steps = opt.steps;
     settings.distanceGuided = opt.distanceGuided;
+    settings.curvedContour = !opt.straightChords;
     // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
     settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
     ContourIntegrator integrator(settings);
@@ -131,6 +133,9 @@ Runner addProbeCommand(CLI::App& app) {
     sub->add_flag("--aci-distance-guided", opt->distanceGuided,
                   "Place dichotomy samples by the secant rule on the obstacles' signed "
                   "clearance (fewer rays on smooth obstacles; see docs/estimator.md)");
+    sub->add_flag("--aci-straight-chords", opt->straightChords,
+                  "Integrate each checked contour piece as two straight chords, exactly as the "
+                  "paper (default: as a parabolic arc through its three points)");
     return [opt] { return runProbe(*opt); };
 }
 
