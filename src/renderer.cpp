@@ -1,10 +1,9 @@
 #include "penumbra/renderer.h"
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <limits>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <string>
