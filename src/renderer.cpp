@@ -542,7 +542,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     }
     checkRange("--width", settingsIn.width, 0, 65536);
     checkRange("--height", settingsIn.height, 0, 65536);
-    checkRange("--threads", settingsIn.threads, 0, 4096);
+    checkRange("--threads", settingsIn.threads, -1, 4096);
     checkRange("--aci-grid", settingsIn.aci.grid, 1, 32);
     checkRange("--aci-steps", settingsIn.aci.steps, 1, 12);
     checkRange("--max-span", settingsIn.maxSpan, 1, 1 << 20);
@@ -557,8 +557,10 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
 
     RenderSettings settings = settingsIn;
     if (!(settings.aci.rayOffset > 0.0)) settings.aci.rayOffset = automaticRayOffset(scene, occluder);
-    const int threads =
-        settings.threads > 0 ? settings.threads : std::max(1, tbb::info::default_concurrency());
+    // threads < 0: run in the caller's arena (a batch shares one arena between its jobs).
+    const int threads = settings.threads > 0   ? settings.threads
+                        : settings.threads < 0 ? tbb::this_task_arena::max_concurrency()
+                                               : std::max(1, tbb::info::default_concurrency());
 
     const int width = camera.width(), height = camera.height();
     RenderResult result;
@@ -572,8 +574,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;
     int rowsDone = 0;
-    tbb::task_arena arena(threads);
-    arena.execute([&] {
+    auto renderRows = [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1),
                           [&](const tbb::blocked_range<int>& rows) {
                               auto& state = states.local();
@@ -586,7 +587,13 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                                   }
                               }
                           });
-    });
+    };
+    if (settings.threads < 0) {
+        renderRows();
+    } else {
+        tbb::task_arena arena(threads);
+        arena.execute(renderRows);
+    }
 
     RenderStats& stats = result.stats;
     for (const auto& state : states) {

@@ -47,7 +47,7 @@ struct RenderSettings {
     Method method = Method::Aci;
     int width = 0;    ///< 0: the camera's width
     int height = 0;   ///< 0: the camera's height
-    int threads = 0;  ///< worker threads; 0: every hardware thread
+    int threads = 0;  ///< worker threads; 0: every hardware thread; -1: the caller's TBB arena
     /// Estimator settings (grid p, steps n, ...). rayOffset <= 0 picks it automatically:
     /// 1.5 voxels of the finest level set, or 1e-6 x the scene's size without level sets.
     /// `gradient` off (the default here) skips the gradient, which only the gradient AOV uses.
