@@ -14,5 +14,7 @@ using Runner = std::function<int()>;
 Runner addProbeCommand(CLI::App& app);
 Runner addRenderCommand(CLI::App& app);
 Runner addBakeCommand(CLI::App& app);
+Runner addCompareCommand(CLI::App& app);
+Runner addBatchCommand(CLI::App& app);
 
 }  // namespace penumbra::cli

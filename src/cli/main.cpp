@@ -17,6 +17,8 @@ int main(int argc, char** argv) {
     runners["probe"] = penumbra::cli::addProbeCommand(app);
     runners["render"] = penumbra::cli::addRenderCommand(app);
     runners["bake"] = penumbra::cli::addBakeCommand(app);
+    runners["compare"] = penumbra::cli::addCompareCommand(app);
+    runners["batch"] = penumbra::cli::addBatchCommand(app);
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
