@@ -113,14 +113,15 @@ int main(int argc, char** argv) {
     };
     std::vector<Setting> settings;
     auto add = [&](const std::string& name, int grid, int steps, bool refine,
-                   bool guided = false, bool curved = false, double thrScale = 1.0) {
+                   bool guided = false, bool curved = false, int probes = 0) {
         AciSettings s;
         s.grid = grid;
         s.steps = steps;
         s.refine = refine;
         s.distanceGuided = guided;
-        s.curvedContour = curved;  // the paper's rows integrate straight chords
-        s.thresholdScale = thrScale;
+        s.curvedContour = curved;  // the paper's rows integrate straight chords...
+        s.midlineCheck = curved;   // ...and check case-3 squares on a random diagonal
+        s.guidedProbes = probes;
         s.rayOffset = 1e-6;
         settings.push_back({name, s});
     };
@@ -130,9 +131,11 @@ int main(int argc, char** argv) {
     add("paper 2x2, n=5, no refine", 2, 5, false);
     add("paper 2x2, n=6", 2, 6, true);
     add("paper 4x4, n=4", 4, 4, true);
-    add("default (arcs) 2x2, n=5", 2, 5, true, false, true);
-    add("arcs+guided 2x2, n=5", 2, 5, true, true, true);
-    add("arcs+guided 2x2, n=4", 2, 4, true, true, true);
+    add("default 2x2, n=5", 2, 5, true, false, true);
+    add("guided 2x2, n=5", 2, 5, true, true, true);
+    add("guided 2x2, n=4", 2, 4, true, true, true);
+    add("guided 2x2, n=3", 2, 3, true, true, true);
+    add("guided 2x2, n=3, 1 probe", 2, 3, true, true, true, 1);
 
     std::printf("Receiver lines of %d points; light 2 x 2 at height 4; errors relative to the "
                 "unoccluded form factor.\n", count);

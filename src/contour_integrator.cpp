@@ -132,9 +132,13 @@ struct ContourIntegrator::Lattice {
         const int count = 1 << steps;
         const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
         auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
-        int lo = 0, hi = count, slow = 0;
+        int lo = 0, hi = count, slow = 0, probes = 0;
+        const int maxProbes = self.mSettings.guidedProbes;
         while (hi - lo > 1) {
             const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+            // Both ends know their distance: interpolating now is as good as narrowing further.
+            if (maxProbes > 0 && probes >= maxProbes && cl > 0.0f && ch < 0.0f) break;
+            ++probes;
             int j = (lo + hi) / 2;
             const bool secant = slow < 2 && cl > 0.0f && ch < 0.0f;  // false for NaN
             if (secant) {
@@ -213,6 +217,7 @@ struct ContourIntegrator::Lattice {
             int exitSide, entrySide;
             LatticePoint checkVis, checkHid;
             int checkSteps;
+            bool midline = false;
         };
         Piece pieces[2];
         int nPieces = 0;
@@ -237,7 +242,7 @@ struct ContourIntegrator::Lattice {
                 if (v[i] && !v[j]) exitSide = i;
                 if (!v[i] && v[j]) entrySide = i;
             }
-            Piece pc{exitSide, entrySide, {}, {}, k};
+            Piece pc{exitSide, entrySide, {}, {}, k, false};
             if (nVisible != 2) {
                 // Case 2: the diagonal through the odd corner.
                 const bool odd = nVisible == 1;  // the odd corner is the one with v == odd
@@ -247,10 +252,21 @@ struct ContourIntegrator::Lattice {
                 pc.checkVis = v[corner] ? c[corner] : c[opposite];
                 pc.checkHid = v[corner] ? c[opposite] : c[corner];
             } else {
-                // Case 3: either diagonal, chosen by a hash of the square (Vedel: at random).
-                const int d = hashSquare(x0, y0, s, self.mSettings.seed) & 1;
-                pc.checkVis = v[d] ? c[d] : c[d + 2];
-                pc.checkHid = v[d] ? c[d + 2] : c[d];
+                if (self.mSettings.midlineCheck) {
+                    // The contour crosses two opposite sides; check it on the square's midline
+                    // between the other two sides' midpoints, half-way along the chord.
+                    const int sa = (exitSide + 1) & 3, sb = (exitSide + 3) & 3;
+                    const LatticePoint ma = midpoint(c[sa], c[(sa + 1) & 3]);
+                    const LatticePoint mb = midpoint(c[sb], c[(sb + 1) & 3]);
+                    pc.checkVis = v[sa] ? ma : mb;
+                    pc.checkHid = v[sa] ? mb : ma;
+                    pc.midline = true;
+                } else {
+                    // Case 3: either diagonal, chosen by a hash of the square (Vedel: at random).
+                    const int d = hashSquare(x0, y0, s, self.mSettings.seed) & 1;
+                    pc.checkVis = v[d] ? c[d] : c[d + 2];
+                    pc.checkHid = v[d] ? c[d + 2] : c[d];
+                }
             }
             pieces[nPieces++] = pc;
         }
@@ -262,6 +278,13 @@ struct ContourIntegrator::Lattice {
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
+            if (pieces[q].midline && (!visible(pieces[q].checkVis) || visible(pieces[q].checkHid))) {
+                // A side's middle disagrees with its corners: the contour crosses that side
+                // twice, which only a split square can represent.
+                change = std::numeric_limits<double>::infinity();
+                z[q] = x[pieces[q].exitSide];
+                continue;
+            }
             z[q] = crossing(pieces[q].checkVis, pieces[q].checkHid, pieces[q].checkSteps);
             change += std::abs(edgeF(a.c, z[q].c) + edgeF(z[q].c, b.c) - edgeF(a.c, b.c));
             ownThr += stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);

@@ -3,12 +3,14 @@
 #include <openvdb/math/Ray.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/RayIntersector.h>
 
 #include <algorithm>
 #include <cassert>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 
 #include "level_set_impl.h"
@@ -18,6 +20,9 @@ namespace penumbra {
 namespace {
 
 using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
+
+constexpr double kFarVoxelFactor = 4.0;  // far-field companion voxels, in fine voxels
+constexpr float kFarBand = 16.0f;        // companion exterior band, in companion voxels
 using VdbRay = openvdb::math::Ray<double>;
 
 /// Per-thread state for one level-set obstacle. Copying gives a new accessor (registered with
@@ -25,11 +30,15 @@ using VdbRay = openvdb::math::Ray<double>;
 struct LevelSetSlot {
     explicit LevelSetSlot(const openvdb::FloatGrid& g)
         : intersector(g), accessor(g.getConstAccessor()), grid(&g) {}
-    LevelSetSlot(const LevelSetSlot&) = default;
+    LevelSetSlot(const LevelSetSlot& o)
+        : intersector(o.intersector), accessor(o.accessor), grid(o.grid) {}
 
     Intersector intersector;
-    openvdb::FloatGrid::ConstAccessor accessor;  // for the "starts inside" test
+    openvdb::FloatGrid::ConstAccessor accessor;  // for the "starts inside" test and clearance
     const openvdb::FloatGrid* grid;
+    // The far-field companion's accessor, made on first use by this thread.
+    const openvdb::FloatGrid* farGrid = nullptr;
+    std::unique_ptr<openvdb::FloatGrid::ConstAccessor> farAccessor;
 };
 
 /// End points are excluded from the segment by this much (relative to the segment length, with
@@ -65,6 +74,25 @@ bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, doubl
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
+// Far-field distance
+
+struct Occluder::FarField {
+    explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
+    const openvdb::FloatGrid& get() {
+        std::call_once(once, [this] {
+            const openvdb::FloatGrid& fine = levelSet->grid();
+            const openvdb::math::Transform::Ptr xform = fine.transform().copy();
+            xform->preScale(kFarVoxelFactor);
+            grid = openvdb::tools::levelSetRebuild(fine, 0.0f, kFarBand, 3.0f, xform.get());
+        });
+        return *grid;
+    }
+    LevelSetPtr levelSet;
+    std::once_flag once;
+    openvdb::FloatGrid::Ptr grid;
+};
+
+// ---------------------------------------------------------------------------------------------
 // Occluder
 
 Occluder::Occluder(std::vector<ObstacleShape> shapes) {
@@ -93,6 +121,8 @@ void Occluder::add(ObstacleShape shape) {
     }
     mShapes.push_back(std::move(shape));
     mBounds.push_back(b);
+    const auto* ls = std::get_if<LevelSetPtr>(&mShapes.back());
+    mFar.push_back(ls && *ls ? std::make_shared<FarField>(*ls) : nullptr);
 }
 
 Occluder::Query Occluder::makeQuery() const { return Query(*this); }
@@ -150,28 +180,54 @@ Clearance sphereClearance(const AnalyticSphere& s, const Vec3& from, const Vec3&
     return c;
 }
 
-/// Smallest level-set value along the segment (sphere tracing: steps of the distance itself,
-/// at least half a voxel), stopping once past the deepest point inside. Unknown when the
-/// smallest value is clamped at the narrow band's edge.
-Clearance levelSetClearance(LevelSetSlot& slot, const Vec3& from, const Vec3& dir, double t0,
-                            double t1) {
-    const double voxel = slot.grid->voxelSize()[0];
-    const double band = slot.grid->background();
+/// Smallest value of `grid` along the segment from + t dir, t in [t0, t1], by sphere tracing
+/// (steps of 0.8 |phi|, at least half a voxel). The stretch where phi only grows from the start
+/// is skipped (a ray leaving the surface it starts on); the march stops once it climbs out past
+/// the deepest point inside.
+template <typename Accessor>
+Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& from,
+                       const Vec3& dir, double t0, double t1) {
+    const double voxel = grid.voxelSize()[0];
     Clearance c;
-    double minPhi = std::numeric_limits<double>::infinity();
+    double minPhi = std::numeric_limits<double>::infinity(), prev = -minPhi;
+    bool leaving = true;
     for (double t = t0; t <= t1;) {
         const Vec3 p = from + t * dir;
         const double phi = openvdb::tools::BoxSampler::sample(
-            slot.accessor, slot.grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
-        if (phi < minPhi) {
+            acc, grid.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
+        leaving = leaving && phi >= prev && phi > 0.0;
+        prev = phi;
+        if (!leaving && phi < minPhi) {
             minPhi = phi;
             c.at = t;
         }
-        if (minPhi < 0.0 && phi > minPhi + voxel) break;  // climbing out past the deepest point
+        if (minPhi < 0.0 && phi > minPhi + voxel) break;
         t += std::max(0.8 * std::abs(phi), 0.5 * voxel);
     }
-    if (std::abs(minPhi) < 0.98 * band) c.distance = minPhi;
+    c.distance = minPhi;
     return c;
+}
+
+/// Signed clearance against a level set: the far-field companion finds where the segment comes
+/// closest, the fine grid refines that place when it is inside the narrow band.
+Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse, const Vec3& from,
+                            const Vec3& dir, double t0, double t1) {
+    if (slot.farGrid != &coarse) {
+        slot.farGrid = &coarse;
+        slot.farAccessor = std::make_unique<openvdb::FloatGrid::ConstAccessor>(
+            coarse.getConstAccessor());
+    }
+    const Clearance c = traceMinimum(coarse, *slot.farAccessor, from, dir, t0, t1);
+    if (!std::isfinite(c.distance)) return Clearance{};
+    const double coarseVoxel = coarse.voxelSize()[0];
+    const double fineBand = slot.grid->background();
+    if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * 3.0 * coarseVoxel)
+        return Clearance{};  // beyond the companion's band: unknown
+    if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
+    const double w = 3.0 * coarseVoxel;
+    const Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir,
+                                     std::max(t0, c.at - w), std::min(t1, c.at + w));
+    return std::abs(f.distance) < 0.98 * fineBand ? f : c;
 }
 
 }  // namespace
@@ -200,25 +256,42 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
         assert(i < mOccluder->size());
         const Box3& bounds = mOccluder->bounds(i);
         if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
+        const ObstacleShape& shape = mOccluder->shape(i);
+        if (clearance) {
+            // Over the whole segment, and around the obstacle as far as its distance is known.
+            Clearance ci;
+            bool near = true;
+            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
+                ci = sphereClearance(*sphere, from, dir, tMin, length - eps);
+            } else {
+                Box3 wide = bounds;
+                const double pad = std::holds_alternative<AnalyticBox>(shape)
+                                       ? glm::length(bounds.hi - bounds.lo)  // no distance: stay away
+                                       : kFarBand * kFarVoxelFactor *
+                                             std::get<LevelSetPtr>(shape)->voxelSize();
+                wide.lo -= Vec3(pad);
+                wide.hi += Vec3(pad);
+                double c0 = tMin, c1 = length - eps;
+                near = wide.clipRay(from, invDir, c0, c1);
+                if (near && std::holds_alternative<LevelSetPtr>(shape) && mImpl->levelSets[i])
+                    ci = levelSetClearance(*mImpl->levelSets[i], mOccluder->mFar[i]->get(), from,
+                                           dir, c0, c1);
+            }
+            if (near) {
+                touched = true;
+                if (!ci.known()) {
+                    clearanceKnown = false;
+                } else if (ci.distance < clearanceMin) {
+                    clearanceMin = ci.distance;
+                    clearanceAt = ci.at;
+                }
+            }
+        }
         double t0 = tMin, t1 = tMax;
         if (!bounds.clipRay(from, invDir, t0, t1)) continue;
 
         double t = 0.0;
         bool found = false;
-        const ObstacleShape& shape = mOccluder->shape(i);
-        if (clearance) {
-            touched = true;
-            Clearance ci;
-            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape))
-                ci = sphereClearance(*sphere, from, dir, t0, t1);
-            else if (std::holds_alternative<LevelSetPtr>(shape))
-                ci = levelSetClearance(*mImpl->levelSets[i], from, dir, t0, t1);
-            if (!ci.known()) clearanceKnown = false;
-            else if (ci.distance < clearanceMin) {
-                clearanceMin = ci.distance;
-                clearanceAt = ci.at;
-            }
-        }
         if (std::holds_alternative<AnalyticBox>(shape)) {
             // The bounds are the box itself, so the clipped interval is the answer.
             found = true;

@@ -42,9 +42,16 @@ struct AciSettings {
     /// samples by the secant rule and contour vertices by interpolation. Same lattice, same
     /// final interval, fewer rays. Off reproduces the paper's bisection exactly.
     bool distanceGuided = false;
+    /// With distanceGuided: stop a dichotomy after this many rays when both ends of its
+    /// bracket know their clearance, and interpolate (0: always narrow to the final interval).
+    int guidedProbes = 0;
     /// Beyond the paper: integrate each checked piece X-Z-Y as a parabolic arc through its
     /// three points instead of two chords (no extra rays; see docs/estimator.md).
     bool curvedContour = true;
+    /// Beyond the paper: check a case-3 square (the contour crosses two opposite sides) on its
+    /// midline rather than on a random diagonal, which meets a contour near a side close to
+    /// one end of its chord and so misses its bulge.
+    bool midlineCheck = true;
     /// When set, every traced shadow ray's target is appended (tests use it to prove that no
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;

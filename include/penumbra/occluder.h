@@ -57,8 +57,14 @@ public:
     class Query;
     Query makeQuery() const;
 
+    /// A level set knows distances only within its narrow band. For the signed clearance of
+    /// shadow rays, each level set gets a companion far-field distance grid (4x coarser
+    /// voxels, an exterior band of 16 of them), built on first use by any thread.
+    struct FarField;
+
 private:
     std::vector<ObstacleShape> mShapes;
+    std::vector<std::shared_ptr<FarField>> mFar;  // index-aligned with mShapes; null if analytic
     std::vector<Box3> mBounds;
     double mMinVoxel = 0.0;
 };
