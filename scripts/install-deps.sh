@@ -4,7 +4,7 @@
 set -euo pipefail
 packages=(build-essential cmake libopenvdb-dev libboost-iostreams-dev libopenimageio-dev
           libtbb-dev libglm-dev catch2 libcli11-dev nlohmann-json3-dev libopenvdb-tools
-          openimageio-tools)
+          openimageio-tools gnuplot-nox)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

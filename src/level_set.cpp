@@ -2,13 +2,18 @@
 
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
 
+#include <unistd.h>
+
+#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <mutex>
 #include <sstream>
+#include <stdexcept>
 
 #include "level_set_impl.h"
 #include "penumbra/error.h"
@@ -49,6 +54,14 @@ LevelSetInfo describe(const LevelSet& ls) {
     info.activeVoxels = grid.activeVoxelCount();
     info.bytes = grid.memUsage();
     return info;
+}
+
+double sampleLevelSet(const LevelSet& ls, const Vec3& pointWS) {
+    const openvdb::FloatGrid& grid = ls.grid();
+    openvdb::FloatGrid::ConstAccessor acc = grid.getConstAccessor();
+    openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler>
+        sampler(acc, grid.transform());
+    return sampler.wsSample(openvdb::Vec3d(pointWS.x, pointWS.y, pointWS.z));
 }
 
 namespace {
@@ -201,11 +214,28 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
 }
 
 void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids) {
+    writeLevelSets(file, grids, VdbWriteOptions{});
+}
+
+void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids,
+                    const VdbWriteOptions& options) {
     ensureOpenVdbInitialized();
     openvdb::GridCPtrVec out;
-    for (const LevelSetPtr& ls : grids) out.push_back(ls->gridPtr());
-    // Write beside the target and rename, so a reader never sees a half-written file.
-    const std::string tmp = file + ".tmp";
+    for (const LevelSetPtr& ls : grids) {
+        if (!options.halfFloat) {
+            out.push_back(ls->gridPtr());
+            continue;
+        }
+        // The half-float flag is grid metadata: change it on a copy that shares the voxels.
+        openvdb::MetaMap meta(ls->grid());
+        meta.insertMeta(openvdb::GridBase::META_SAVE_HALF_FLOAT, openvdb::BoolMetadata(true));
+        out.push_back(ls->grid().copyGridReplacingMetadata(meta));
+    }
+    // Write beside the target and rename, so a reader never sees a half-written file. The
+    // temporary name is unique per process and call, so concurrent writers do not collide.
+    static std::atomic<unsigned> counter{0};
+    const std::string tmp = file + ".tmp." + std::to_string(::getpid()) + "." +
+                            std::to_string(counter++);
     try {
         openvdb::io::File vdb(tmp);
         vdb.write(out);
@@ -218,6 +248,14 @@ void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& gri
         std::remove(tmp.c_str());
         throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
     }
+}
+
+LevelSetPtr renamedLevelSet(const LevelSetPtr& levelSet, const std::string& name) {
+    if (!levelSet) throw std::invalid_argument("renamedLevelSet: null level set");
+    openvdb::MetaMap meta(levelSet->grid());
+    meta.insertMeta(openvdb::GridBase::META_GRID_NAME, openvdb::StringMetadata(name));
+    return std::make_shared<const LevelSet>(openvdb::gridConstPtrCast<openvdb::FloatGrid>(
+        levelSet->grid().copyGridReplacingMetadata(meta)));
 }
 
 }  // namespace penumbra

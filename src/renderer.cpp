@@ -28,15 +28,39 @@ const char* methodName(Method method) {
     switch (method) {
         case Method::Aci: return "aci";
         case Method::AciPixel: return "aci-pixel";
+        case Method::Reference: return "reference";
+        case Method::McAdaptive: return "mc-adaptive";
+        case Method::McSolidAngle: return "mc-solid-angle";
+        case Method::McRatio: return "mc-ratio";
     }
     return "?";
 }
 
+bool isMonteCarlo(Method method) {
+    return method == Method::Reference || method == Method::McAdaptive ||
+           method == Method::McSolidAngle || method == Method::McRatio;
+}
+
+int defaultSamples(Method method) {
+    switch (method) {
+        case Method::Reference: return 1024;
+        case Method::McAdaptive: return 1024;
+        case Method::McSolidAngle: return 16;
+        case Method::McRatio: return 16;
+        default: return 0;
+    }
+}
+
 Method parseMethod(const std::string& name, const std::string& flag) {
-    for (Method m : {Method::Aci, Method::AciPixel}) {
+    const Method all[] = {Method::Aci,       Method::AciPixel,     Method::Reference,
+                          Method::McAdaptive, Method::McSolidAngle, Method::McRatio};
+    for (Method m : all) {
         if (name == methodName(m)) return m;
     }
-    throw InputError("", flag, "unknown method '" + name + "' (expected aci or aci-pixel)");
+    throw InputError("", flag,
+                     "unknown method '" + name +
+                         "' (expected aci, aci-pixel, reference, mc-adaptive, mc-solid-angle or "
+                         "mc-ratio)");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -260,8 +284,10 @@ class SpanShader {
     static constexpr uint8_t kClosedForm = 2;  // no candidate in its shaft: closed form
 
 public:
-    SpanShader(const Context& ctx, ThreadState& ts, const RectLight& light)
-        : mCtx(ctx), mTs(ts), mLight(light), mSettings(ctx.settings) {}
+    SpanShader(const Context& ctx, ThreadState& ts, const RectLight& light, size_t lightIndex,
+               int row)
+        : mCtx(ctx), mTs(ts), mLight(light), mSettings(ctx.settings), mLightIndex(lightIndex),
+          mRow(row) {}
 
     // Shades pixels [x0, x1] of the current row (all on one object) for mLight.
     void shadeSpan(int x0, int x1) {
@@ -324,6 +350,14 @@ public:
         if (cand.empty()) return;
 
         mTs.shadow.restrictTo(&cand);
+        if (isMonteCarlo(mSettings.method)) {
+            // One estimate per pixel that needs rays: the same pixels as the ACI pipeline's.
+            for (int x = x0; x <= x1; ++x) {
+                if (mTs.lit[size_t(x - x0)] == kNeedsRays) monteCarlo(x);
+            }
+            mTs.shadow.restrictTo(nullptr);
+            return;
+        }
         mGrid = mSettings.aci.grid;  // the adaptive density starts afresh on every span
         int x = x0;
         while (x <= x1) {
@@ -360,6 +394,25 @@ private:
         s.irradiance += mLight.radiance * f;
         s.formFactor += f;
         s.gradient += grad;
+    }
+
+    // A Monte Carlo estimate at pixel x, seeded by the pixel and the light only.
+    void monteCarlo(int x) {
+        McSettings s = mSettings.mc;
+        s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
+        const Receiver r = receiver(x);
+        uint64_t before = mTs.shadow.raysCast();
+        Estimate e;
+        switch (mSettings.method) {
+            case Method::Reference: e = monteCarloReference(r, mLight, mTs.shadow, s); break;
+            case Method::McAdaptive: e = monteCarloAdaptive(r, mLight, mTs.shadow, s); break;
+            case Method::McSolidAngle: e = monteCarloSolidAngle(r, mLight, mTs.shadow, s); break;
+            default: e = monteCarloRatio(r, mLight, mTs.shadow, s); break;
+        }
+        mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        mTs.stats.firstLevelRays += e.counts.firstLevelRays;
+        mTs.stats.secondLevelRays += e.counts.secondLevelRays;
+        store(x, e.formFactor, Vec3(0.0));
     }
 
     Estimate evaluate(int x, bool adapt) {
@@ -471,6 +524,8 @@ private:
     ThreadState& mTs;
     const RectLight& mLight;
     const RenderSettings& mSettings;
+    size_t mLightIndex;
+    int mRow;
     int mGrid = 2;
 };
 
@@ -486,8 +541,9 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
         if (ts.hits[size_t(x)].object >= 0) ++st.viewingRayHits;
     }
 
-    for (const RectLight& light : ctx.scene.lights) {
-        SpanShader shader(ctx, ts, light);
+    for (size_t li = 0; li < ctx.scene.lights.size(); ++li) {
+        const RectLight& light = ctx.scene.lights[li];
+        SpanShader shader(ctx, ts, light, li, y);
         if (settings.method == Method::AciPixel) {
             for (int x = 0; x < width; ++x) {
                 if (ts.hits[size_t(x)].object >= 0) shader.shadePixel(x);
@@ -547,6 +603,26 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     checkRange("--aci-steps", settingsIn.aci.steps, 1, 12);
     checkRange("--max-span", settingsIn.maxSpan, 1, 1 << 20);
     checkRange("--max-grid-factor", settingsIn.maxGridFactor, 1, 16);
+    checkRange("--samples", settingsIn.mc.samples, 0, 1 << 20);
+    if (!(settingsIn.mc.threshold > 0.0) || !std::isfinite(settingsIn.mc.threshold)) {
+        throw InputError("", "--mc-threshold",
+                         "must be a finite number > 0, got " + std::to_string(settingsIn.mc.threshold));
+    }
+    checkRange("--mc-max-depth", settingsIn.mc.maxDepth, 0, 24);
+    checkRange("--mc-initial-depth", settingsIn.mc.initialDepth, 0, 8);
+    if (settingsIn.method == Method::McSolidAngle || settingsIn.method == Method::McRatio) {
+        // The spherical-rectangle parametrization needs a rectangle, not a parallelogram.
+        for (size_t i = 0; i < scene.lights.size(); ++i) {
+            const RectLight& l = scene.lights[i];
+            if (std::abs(glm::dot(l.edgeU, l.edgeV)) >
+                1e-9 * glm::length(l.edgeU) * glm::length(l.edgeV)) {
+                throw InputError(scene.file, "/lights/" + std::to_string(i),
+                                 std::string(methodName(settingsIn.method)) +
+                                     " samples the light's spherical rectangle and needs edge_u "
+                                     "perpendicular to edge_v");
+            }
+        }
+    }
 
     auto start = std::chrono::steady_clock::now();
     Camera cam = *scene.camera;
@@ -557,6 +633,8 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
 
     RenderSettings settings = settingsIn;
     if (!(settings.aci.rayOffset > 0.0)) settings.aci.rayOffset = automaticRayOffset(scene, occluder);
+    settings.mc.rayOffset = settings.aci.rayOffset;
+    if (settings.mc.samples == 0) settings.mc.samples = defaultSamples(settings.method);
     // threads < 0: run in the caller's arena (a batch shares one arena between its jobs).
     const int threads = settings.threads > 0   ? settings.threads
                         : settings.threads < 0 ? tbb::this_task_arena::max_concurrency()

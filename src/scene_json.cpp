@@ -2,10 +2,14 @@
 // docs/scene-format.md; keep the two in step.
 //
 // Loading runs in three passes so that a typo in the last obstacle is reported before minutes
-// are spent voxelizing the first one: (1) parse and validate the whole document into plans,
-// (2) estimate the memory of every level set to be built and refuse the scene when over the
-// limit, (3) build the level sets and read the .vdb files.
+// are spent voxelizing the first one: (1) parse and validate the whole document into plans
+// (meshes are read here: their size enters the estimate), (2) cut unbounded half-spaces to the
+// scene's bounds, estimate the memory of every level set to be built and refuse the scene when
+// over the limit, (3) build the level sets (shape.h) and read the .vdb files.
+#include <unistd.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -19,6 +23,7 @@
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"
+#include "penumbra/shape.h"
 
 namespace penumbra {
 
@@ -29,18 +34,11 @@ using Json = nlohmann::json;
 constexpr int kMaxImageSide = 32768;
 constexpr double kDefaultMemoryLimitGiB = 16.0;
 constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
-// Bytes per active voxel of a level-set tree, for the memory estimate. Measured with
-// describe().bytes / activeVoxels on OpenVDB 10 spheres and boxes of half width 3: 18.5 and
-// 13.6 bytes for 0.19 M and 0.75 M voxels, falling as grids grow because the fixed cost of the
-// upper tree nodes (~3.5 MB) is shared by more leaves. The large-grid limit is about 9-11 bytes
-// (each 8^3 leaf stores 512 floats while the band fills only part of it), and grids large enough
-// to matter are in that regime; 12 leaves a margin. The estimate guards against absurd
-// requests, it need not be tight.
-constexpr double kBytesPerBandVoxel = 12.0;
-// OpenVDB index coordinates are int32 and createLevelSetSphere works in float voxel units;
-// keep geometry well inside both ranges.
+// OpenVDB index coordinates are int32 and its mesher works in float voxel units; keep geometry
+// well inside both ranges.
 constexpr double kMaxIndexCoordinate = double(1 << 24);
-// OpenVDB silently produces an empty grid for a sphere under 1.5 voxels in radius.
+// Smaller features come out empty or badly voxelized (OpenVDB's own sphere builder produces
+// nothing under 1.5 voxels in radius).
 constexpr double kMinFeatureVoxels = 1.5;
 // sin(angle) between edge_u and edge_v below which a light counts as degenerate.
 constexpr double kMinEdgeSine = 1e-9;
@@ -470,32 +468,39 @@ Json parseText(const std::string& text, const std::string& file) {
 // ---------------------------------------------------------------------------------------------
 // Pass 1: the document -> plans
 
-struct SphereLevelSetPlan {
-    Vec3 center;
-    double radius;
-    double voxelSize, halfWidth;
-};
-struct BoxLevelSetPlan {
-    Vec3 lo, hi;
+/// An obstacle built by shape.h: implicit primitives, CSG trees, meshes.
+struct ImplicitPlan {
+    ShapeNode node;
     double voxelSize, halfWidth;
 };
 struct VdbPlan {
     std::string path;  ///< resolved
     std::string grid;  ///< empty: every level-set grid
+    Similarity transform;
 };
-using ShapePlan =
-    std::variant<AnalyticSphere, AnalyticBox, SphereLevelSetPlan, BoxLevelSetPlan, VdbPlan>;
+using ShapePlan = std::variant<AnalyticSphere, AnalyticBox, ImplicitPlan, VdbPlan>;
 
 struct ObstaclePlan {
     std::string pointer;
     std::string name;  ///< empty: derive (obstacle_K, or the grid names of a .vdb)
     size_t index;      ///< position in the "obstacles" array
+    std::string type;  ///< the scene file's type
     Rgb albedo{0.8};
+    double voxelSize = 0.0, halfWidth = 0.0;  ///< implicit and analytic obstacles
     ShapePlan shape;
 };
 
+/// The default limit on the memory of the level sets to build: 16 GiB, or three quarters of
+/// the machine's memory when that is less.
+double defaultMemoryLimitBytes() {
+    double limit = kDefaultMemoryLimitGiB * kGiB;
+    const long pages = ::sysconf(_SC_PHYS_PAGES), pageSize = ::sysconf(_SC_PAGE_SIZE);
+    if (pages > 0 && pageSize > 0) limit = std::min(limit, 0.75 * double(pages) * double(pageSize));
+    return limit;
+}
+
 struct MemoryBudget {
-    double limitBytes = kDefaultMemoryLimitGiB * kGiB;
+    double limitBytes = defaultMemoryLimitBytes();
 };
 
 Camera parseCamera(const Node& node) {
@@ -574,108 +579,308 @@ PlaneReceiver parseReceiver(const Node& node) {
     return plane;
 }
 
-/// Refuses implicit primitives too small for the voxels or too far out for OpenVDB's indices.
-void checkVoxelization(const Object& obj, const std::string& sizeKey, double smallestExtent,
-                       double largestCoordinate, double voxelSize) {
-    if (smallestExtent < kMinFeatureVoxels * voxelSize) {
-        obj.at(sizeKey).fail("is below " + numberText(kMinFeatureVoxels) + " voxels (voxel_size " +
-                             numberText(voxelSize) +
-                             "): the level set would be empty or wrong; lower voxel_size or "
-                             "set \"analytic\": true");
+// ---------------------------------------------------------------------------------------------
+// Obstacles and CSG children
+
+const std::vector<std::string> kShapeTypes = {"sphere",     "box",  "torus", "capsule", "cylinder",
+                                              "half_space", "csg",  "mesh",  "vdb"};
+const std::vector<std::string> kCsgOps = {"union", "intersection", "difference", "smooth_union"};
+
+std::string joined(const std::vector<std::string>& words) {
+    std::string out;
+    for (const std::string& w : words) out += (out.empty() ? "" : ", ") + w;
+    return out;
+}
+
+/// The keys of a shape's own geometry (besides type, transform, and the obstacle-level keys).
+std::vector<std::string> shapeKeys(const std::string& kind) {
+    if (kind == "sphere") return {"center", "radius"};
+    if (kind == "box") return {"center", "size", "round"};
+    if (kind == "torus") return {"center", "major_radius", "minor_radius", "axis"};
+    if (kind == "capsule") return {"a", "b", "radius"};
+    if (kind == "cylinder") return {"center", "axis", "radius", "height"};
+    if (kind == "half_space") return {"point", "normal", "bounds"};
+    if (kind == "csg") return {"op", "blend", "children"};
+    if (kind == "mesh") return {"file", "thickness"};
+    return {"file", "grid"};  // vdb
+}
+
+/// The "type" of an obstacle or CSG child, read before its keys are checked (the allowed keys
+/// depend on it).
+std::string readType(const Node& node, const std::string& what) {
+    if (!node.json().is_object()) node.fail("expected an object, got " + typeName(node.json()));
+    auto it = node.json().find("type");
+    if (it == node.json().end()) {
+        throw InputError(node.context().file, node.pointer() + "/type",
+                         "missing required field 'type' (one of " + joined(kShapeTypes) + ")");
     }
-    if (largestCoordinate / voxelSize > kMaxIndexCoordinate) {
-        obj.node().fail("extends to ~" + numberText(std::round(largestCoordinate / voxelSize)) +
-                        " voxels from the origin, beyond the level set's index range (" +
-                        numberText(kMaxIndexCoordinate) + "); raise voxel_size");
+    const Node n(*it, node.pointer() + "/type", node.context());
+    const std::string kind = n.string();
+    if (std::find(kShapeTypes.begin(), kShapeTypes.end(), kind) == kShapeTypes.end()) {
+        n.fail("unknown " + what + " type " + inQuotes(kind) + suggestion(kind, kShapeTypes));
+    }
+    return kind;
+}
+
+struct ParsedTransform {
+    Similarity similarity;
+    bool rotates = false;
+};
+
+ParsedTransform parseTransform(const Node& node) {
+    const Object obj(node, {"translate", "rotate_deg", "scale"});
+    const Vec3 translate = obj.vec3("translate", Vec3(0.0));
+    const Vec3 rotateDeg = obj.vec3("rotate_deg", Vec3(0.0));
+    const double scale = obj.numberAbove("scale", 0.0, 1.0);
+    return {Similarity::fromSceneTransform(translate, rotateDeg, scale), rotateDeg != Vec3(0.0)};
+}
+
+/// A path relative to the scene file's directory, which must name an existing file.
+std::string existingFile(const Node& fileNode) {
+    const std::string file = fileNode.nonEmptyString();
+    std::filesystem::path p(file);
+    if (p.is_relative() && !fileNode.context().baseDir.empty()) {
+        p = std::filesystem::path(fileNode.context().baseDir) / p;
+    }
+    const std::string path = p.lexically_normal().string();
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(path, ec)) {
+        fileNode.fail("no such file " + inQuotes(file) +
+                      (path != file ? " (resolved to " + inQuotes(path) + ")" : ""));
+    }
+    return path;
+}
+
+/// Refuses a feature too small for the voxels: the level set would be empty or wrong.
+void checkFeature(const Node& n, double localSize, double scale, double voxel,
+                  bool analyticHint) {
+    if (localSize * scale < kMinFeatureVoxels * voxel) {
+        n.fail("is below " + numberText(kMinFeatureVoxels) + " voxels (voxel_size " +
+               numberText(voxel) + (scale != 1.0 ? ", after scaling by " + numberText(scale) : "") +
+               "): the level set would be empty or wrong; lower voxel_size" +
+               (analyticHint ? " or set \"analytic\": true" : ""));
+    }
+}
+
+Vec3 positiveVec3(const Node& n) {
+    const Vec3 v = n.vec3();
+    for (int k = 0; k < 3; ++k) {
+        if (!(v[k] > 0.0)) n.element(k).fail("must be > 0, got " + numberText(v[k]));
+    }
+    return v;
+}
+
+/// "bounds": [[lo], [hi]] with lo < hi on every axis.
+Box3 parseBounds(const Node& n) {
+    if (!n.json().is_array() || n.json().size() != 2) {
+        n.fail("expected [[x, y, z], [x, y, z]] (low and high corners), got " + typeName(n.json()));
+    }
+    const Box3 b{n.element(0).vec3(), n.element(1).vec3()};
+    for (int k = 0; k < 3; ++k) {
+        if (!(b.lo[k] < b.hi[k])) {
+            n.element(1).element(k).fail("must be > the low corner's " + numberText(b.lo[k]) +
+                                         ", got " + numberText(b.hi[k]));
+        }
+    }
+    return b;
+}
+
+TriangleMesh readMesh(const Node& fileNode, const std::string& path) {
+    try {
+        return readObj(path);
+    } catch (const InputError& e) {
+        // The scene file and pointer first (what the user edits), the OBJ and its line after.
+        throw InputError(fileNode.context().file, fileNode.pointer(),
+                         e.file() + (e.where().empty() ? "" : ": " + e.where()) + ": " +
+                             e.message());
+    }
+}
+
+ShapeNode parseShape(const Object& obj, const std::string& kind, double voxel, double parentScale,
+                     bool topLevel);
+
+ShapeNode parseChild(const Node& node, double voxel, double parentScale) {
+    const std::string kind = readType(node, "shape");
+    std::vector<std::string> keys = {"type", "transform"};
+    const std::vector<std::string> own = shapeKeys(kind);
+    keys.insert(keys.end(), own.begin(), own.end());
+    return parseShape(Object(node, keys), kind, voxel, parentScale, false);
+}
+
+/// The geometry of a non-analytic obstacle or of a CSG child, in its local frame. `voxel` is
+/// the voxel size of the obstacle being built, `parentScale` the scale its ancestors apply.
+ShapeNode parseShape(const Object& obj, const std::string& kind, double voxel, double parentScale,
+                     bool topLevel) {
+    ShapeNode out;
+    if (obj.has("transform")) out.transform = parseTransform(obj.at("transform")).similarity;
+    const double s = parentScale * out.transform.scale;
+    const bool hint = topLevel && (kind == "sphere" || kind == "box");
+    auto feature = [&](const Node& n, double localSize) {
+        checkFeature(n, localSize, s, voxel, hint);
+    };
+    auto positive = [&](const std::string& key) {
+        const Node n = obj.at(key);
+        const double x = n.numberAbove(0.0);
+        feature(n, x);
+        return x;
+    };
+    auto axis = [&]() {
+        return obj.has("axis") ? obj.at("axis").direction() : Vec3(0.0, 0.0, 1.0);
+    };
+
+    if (kind == "sphere") {
+        SphereShape sphere;
+        sphere.center = obj.at("center").vec3();
+        sphere.radius = positive("radius");
+        out.kind = sphere;
+    } else if (kind == "box") {
+        BoxShape box;
+        box.center = obj.at("center").vec3();
+        const Node sizeNode = obj.at("size");
+        box.size = positiveVec3(sizeNode);
+        const double smallest = std::min({box.size.x, box.size.y, box.size.z});
+        feature(sizeNode, smallest);
+        if (obj.has("round")) {
+            const Node r = obj.at("round");
+            box.round = r.number();
+            if (box.round < 0.0) r.fail("must be >= 0, got " + numberText(box.round));
+            if (box.round > 0.5 * smallest) {
+                r.fail("must be <= half the smallest size (" + numberText(0.5 * smallest) +
+                       "), got " + numberText(box.round));
+            }
+        }
+        out.kind = box;
+    } else if (kind == "torus") {
+        TorusShape torus;
+        torus.center = obj.at("center").vec3();
+        torus.majorRadius = obj.at("major_radius").numberAbove(0.0);
+        torus.minorRadius = positive("minor_radius");
+        torus.axis = axis();
+        out.kind = torus;
+    } else if (kind == "capsule") {
+        CapsuleShape capsule;
+        capsule.a = obj.at("a").vec3();
+        capsule.b = obj.at("b").vec3();
+        capsule.radius = positive("radius");
+        out.kind = capsule;
+    } else if (kind == "cylinder") {
+        CylinderShape cylinder;
+        cylinder.center = obj.at("center").vec3();
+        cylinder.axis = axis();
+        cylinder.radius = positive("radius");
+        cylinder.height = positive("height");
+        out.kind = cylinder;
+    } else if (kind == "half_space") {
+        HalfSpaceShape half;
+        half.point = obj.at("point").vec3();
+        half.normal = obj.at("normal").direction();
+        if (obj.has("bounds")) half.boundsWS = parseBounds(obj.at("bounds"));
+        out.kind = half;
+    } else if (kind == "csg") {
+        CsgShape csg;
+        const Node opNode = obj.at("op");
+        const std::string op = opNode.string();
+        const auto it = std::find(kCsgOps.begin(), kCsgOps.end(), op);
+        if (it == kCsgOps.end()) {
+            opNode.fail("unknown csg op " + inQuotes(op) + suggestion(op, kCsgOps));
+        }
+        csg.op = static_cast<CsgOp>(it - kCsgOps.begin());
+        if (csg.op == CsgOp::SmoothUnion) {
+            csg.blend = obj.at("blend").numberAbove(0.0);
+        } else if (obj.has("blend")) {
+            obj.at("blend").fail("applies only to op \"smooth_union\" (this csg is a " + op + ")");
+        }
+        const Node children = obj.at("children");
+        children.array();
+        if (children.json().size() < 2) {
+            children.fail("a csg needs at least 2 children, got " +
+                          std::to_string(children.json().size()));
+        }
+        for (size_t i = 0; i < children.json().size(); ++i) {
+            csg.children.push_back(parseChild(children.element(i), voxel, s));
+        }
+        out.kind = std::move(csg);
+    } else if (kind == "mesh") {
+        MeshShape mesh;
+        const Node fileNode = obj.at("file");
+        mesh.file = existingFile(fileNode);
+        mesh.mesh = std::make_shared<const TriangleMesh>(readMesh(fileNode, mesh.file));
+        if (obj.has("thickness")) mesh.thickness = positive("thickness");
+        out.kind = std::move(mesh);
+    } else {  // a .vdb grid inside a CSG, read in pass 3
+        GridShape grid;
+        grid.file = existingFile(obj.at("file"));
+        if (obj.has("grid")) grid.grid = obj.at("grid").nonEmptyString();
+        out.kind = std::move(grid);
+    }
+    return out;
+}
+
+/// Refuses geometry beyond OpenVDB's index range at this voxel size.
+void checkIndexRange(const Node& node, const Box3& bounds, double voxel) {
+    if (bounds.empty()) return;
+    const double reach = std::max({std::fabs(bounds.lo.x), std::fabs(bounds.lo.y),
+                                   std::fabs(bounds.lo.z), std::fabs(bounds.hi.x),
+                                   std::fabs(bounds.hi.y), std::fabs(bounds.hi.z)});
+    if (reach / voxel > kMaxIndexCoordinate) {
+        node.fail("extends to ~" + numberText(std::round(reach / voxel)) +
+                  " voxels from the origin, beyond the level set's index range (" +
+                  numberText(kMaxIndexCoordinate) + "); raise voxel_size");
     }
 }
 
 ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSettings& global) {
-    if (!node.json().is_object()) node.fail("expected an object, got " + typeName(node.json()));
-    // The allowed keys depend on the type, so read it before the key check.
-    const std::vector<std::string> kinds = {"sphere", "box", "vdb"};
-    std::string kind;
-    {
-        auto it = node.json().find("type");
-        if (it == node.json().end()) {
-            throw InputError(node.context().file, node.pointer() + "/type",
-                             "missing required field 'type' (one of sphere, box, vdb)");
-        }
-        const Node n(*it, node.pointer() + "/type", node.context());
-        kind = n.string();
-        if (std::find(kinds.begin(), kinds.end(), kind) == kinds.end()) {
-            n.fail("unknown obstacle type " + inQuotes(kind) + suggestion(kind, kinds));
-        }
-    }
-    std::vector<std::string> keys = {"type", "name", "albedo"};
-    if (kind == "sphere") {
-        keys.insert(keys.end(), {"center", "radius", "analytic", "voxel_size", "half_width"});
-    } else if (kind == "box") {
-        keys.insert(keys.end(), {"center", "size", "analytic", "voxel_size", "half_width"});
-    } else {
-        keys.insert(keys.end(), {"file", "grid"});
-    }
+    const std::string kind = readType(node, "obstacle");
+    std::vector<std::string> keys = {"type", "name", "albedo", "transform"};
+    const std::vector<std::string> own = shapeKeys(kind);
+    keys.insert(keys.end(), own.begin(), own.end());
+    if (kind != "vdb") keys.insert(keys.end(), {"voxel_size", "half_width"});
+    if (kind == "sphere" || kind == "box") keys.push_back("analytic");
     const Object obj(node, keys);
 
     ObstaclePlan plan;
     plan.pointer = node.pointer();
     plan.index = index;
+    plan.type = kind;
     if (obj.has("name")) plan.name = obj.at("name").nonEmptyString();
     plan.albedo = obj.rgb("albedo", plan.albedo);
 
     if (kind == "vdb") {
         VdbPlan vdb;
-        const Node fileNode = obj.at("file");
-        const std::string file = fileNode.nonEmptyString();
-        std::filesystem::path p(file);
-        if (p.is_relative() && !node.context().baseDir.empty()) {
-            p = std::filesystem::path(node.context().baseDir) / p;
-        }
-        vdb.path = p.lexically_normal().string();
-        std::error_code ec;
-        if (!std::filesystem::is_regular_file(vdb.path, ec)) {
-            fileNode.fail("no such file " + inQuotes(file) +
-                          (vdb.path != file ? " (resolved to " + inQuotes(vdb.path) + ")" : ""));
-        }
+        vdb.path = existingFile(obj.at("file"));
         if (obj.has("grid")) vdb.grid = obj.at("grid").nonEmptyString();
+        if (obj.has("transform")) vdb.transform = parseTransform(obj.at("transform")).similarity;
         plan.shape = vdb;
         return plan;
     }
 
-    const Vec3 center = obj.at("center").vec3();
-    const bool analytic = obj.boolean("analytic", false);
-    const double voxel = obj.numberAbove("voxel_size", 0.0, global.voxelSize);
-    double halfWidth = global.halfWidth;
-    if (obj.has("half_width")) {
-        halfWidth = obj.at("half_width").numberAbove(1.0);
-    }
-    const double farthest = glm::length(center);
+    plan.voxelSize = obj.numberAbove("voxel_size", 0.0, global.voxelSize);
+    // OpenVDB's rasterizers refuse a band of one voxel or less.
+    plan.halfWidth = obj.numberAbove("half_width", 1.0, global.halfWidth);
 
-    if (kind == "sphere") {
-        const double radius = obj.at("radius").numberAbove(0.0);
-        if (analytic) {
+    if (obj.boolean("analytic", false)) {
+        ParsedTransform t;
+        if (obj.has("transform")) t = parseTransform(obj.at("transform"));
+        const Vec3 center = t.similarity.apply(obj.at("center").vec3());
+        if (kind == "sphere") {
+            const double radius = obj.at("radius").numberAbove(0.0) * t.similarity.scale;
             plan.shape = AnalyticSphere{center, radius};
         } else {
-            checkVoxelization(obj, "radius", radius, farthest + radius, voxel);
-            plan.shape = SphereLevelSetPlan{center, radius, voxel, halfWidth};
-        }
-    } else {
-        const Node sizeNode = obj.at("size");
-        const Vec3 size = sizeNode.vec3();
-        for (int k = 0; k < 3; ++k) {
-            if (!(size[k] > 0.0)) {
-                sizeNode.element(k).fail("must be > 0, got " + numberText(size[k]));
+            if (t.rotates) {
+                obj.at("transform").fail(
+                    "an analytic box stays axis-aligned: rotate_deg must be [0, 0, 0] (or drop "
+                    "\"analytic\")");
             }
+            if (obj.has("round")) obj.at("round").fail("an analytic box has sharp edges");
+            const Vec3 size = positiveVec3(obj.at("size")) * t.similarity.scale;
+            plan.shape = AnalyticBox{center - 0.5 * size, center + 0.5 * size};
         }
-        const Vec3 lo = center - 0.5 * size, hi = center + 0.5 * size;
-        if (analytic) {
-            plan.shape = AnalyticBox{lo, hi};
-        } else {
-            const double smallest = std::min({size.x, size.y, size.z});
-            checkVoxelization(obj, "size", smallest, farthest + glm::length(size), voxel);
-            plan.shape = BoxLevelSetPlan{lo, hi, voxel, halfWidth};
-        }
+        return plan;
     }
+    ImplicitPlan implicit{parseShape(obj, kind, plan.voxelSize, 1.0, true), plan.voxelSize,
+                          plan.halfWidth};
+    checkIndexRange(obj.node(), shapeBounds(implicit.node), plan.voxelSize);
+    plan.shape = std::move(implicit);
     return plan;
 }
 
@@ -685,43 +890,72 @@ LevelSetSettings parseLevelSetSettings(const Node& node, MemoryBudget& budget) {
     s.voxelSize = obj.numberAbove("voxel_size", 0.0, s.voxelSize);
     // OpenVDB's sphere rasterizer refuses a band of one voxel or less.
     s.halfWidth = obj.numberAbove("half_width", 1.0, s.halfWidth);
-    budget.limitBytes = obj.numberAbove("max_memory_gib", 0.0, kDefaultMemoryLimitGiB) * kGiB;
+    if (obj.has("max_memory_gib")) {
+        budget.limitBytes = obj.at("max_memory_gib").numberAbove(0.0) * kGiB;
+    }
     return s;
 }
 
 // ---------------------------------------------------------------------------------------------
-// Pass 2: memory. A narrow band holds about (surface area / voxel^2) * (2 * half width) voxels.
+// Pass 2: half-space bounds, then memory
 
-double estimatedBytes(const ShapePlan& shape) {
-    double area = 0.0, voxel = 1.0, halfWidth = 0.0;
-    if (const auto* s = std::get_if<SphereLevelSetPlan>(&shape)) {
-        area = 4.0 * kPi * s->radius * s->radius;
-        voxel = s->voxelSize;
-        halfWidth = s->halfWidth;
-    } else if (const auto* b = std::get_if<BoxLevelSetPlan>(&shape)) {
-        const Vec3 d = b->hi - b->lo;
-        area = 2.0 * (d.x * d.y + d.y * d.z + d.z * d.x);
-        voxel = b->voxelSize;
-        halfWidth = b->halfWidth;
-    } else {
-        return 0.0;  // analytic shapes need nothing; .vdb files are as large as they are
+/// Calls f on every node of the tree, with its JSON pointer (the tree mirrors the document).
+template <class F>
+void forEachNode(ShapeNode& node, const std::string& pointer, F&& f) {
+    f(node, pointer);
+    if (auto* csg = std::get_if<CsgShape>(&node.kind)) {
+        for (size_t i = 0; i < csg->children.size(); ++i) {
+            forEachNode(csg->children[i], pointer + "/children/" + std::to_string(i), f);
+        }
     }
-    return area / (voxel * voxel) * 2.0 * halfWidth * kBytesPerBandVoxel;
+}
+
+/// The box half-spaces are cut to when they give no "bounds": around the lights, the camera's
+/// eye and target and every obstacle other than half-spaces and .vdb files, widened by 10% of
+/// its diagonal on each side.
+Box3 sceneBounds(const Scene& scene, const std::vector<ObstaclePlan>& plans) {
+    Box3 b;
+    for (const RectLight& l : scene.lights) {
+        for (const Vec3& p : l.polygon()) b.extend(p);
+    }
+    if (scene.camera) {
+        b.extend(scene.camera->eye);
+        b.extend(scene.camera->lookAt);
+    }
+    for (const ObstaclePlan& p : plans) {
+        if (const auto* s = std::get_if<AnalyticSphere>(&p.shape)) {
+            b.extend(Box3{s->center - Vec3(s->radius), s->center + Vec3(s->radius)});
+        } else if (const auto* x = std::get_if<AnalyticBox>(&p.shape)) {
+            b.extend(Box3{x->lo, x->hi});
+        } else if (const auto* i = std::get_if<ImplicitPlan>(&p.shape)) {
+            const Box3 nb = shapeBounds(i->node);  // ignores unbounded half-spaces
+            if (!nb.empty()) b.extend(nb);
+        }
+    }
+    const double pad = 0.1 * glm::length(b.hi - b.lo);
+    return Box3{b.lo - Vec3(pad), b.hi + Vec3(pad)};
+}
+
+double estimatedBytes(const ObstaclePlan& plan) {
+    if (const auto* i = std::get_if<ImplicitPlan>(&plan.shape)) {
+        return estimateBuildBytes(i->node, i->voxelSize, i->halfWidth);
+    }
+    return 0.0;  // analytic shapes need nothing; .vdb files are as large as they are
 }
 
 void checkMemory(const std::vector<ObstaclePlan>& plans, const MemoryBudget& budget,
                  const std::string& file) {
     double total = 0.0;
-    for (const ObstaclePlan& p : plans) total += estimatedBytes(p.shape);
+    for (const ObstaclePlan& p : plans) total += estimatedBytes(p);
     if (total <= budget.limitBytes) return;
     // Blame the largest one: it is the one worth coarsening.
     const ObstaclePlan* worst = &plans.front();
     for (const ObstaclePlan& p : plans) {
-        if (estimatedBytes(p.shape) > estimatedBytes(worst->shape)) worst = &p;
+        if (estimatedBytes(p) > estimatedBytes(*worst)) worst = &p;
     }
     throw InputError(
         file, worst->pointer,
-        "would need ~" + bytesText(estimatedBytes(worst->shape)) + " for its level set (~" +
+        "would need ~" + bytesText(estimatedBytes(*worst)) + " for its level set (~" +
             bytesText(total) + " for all implicit obstacles, over the limit of " +
             bytesText(budget.limitBytes) + "); raise voxel_size or level_set.max_memory_gib");
 }
@@ -729,32 +963,102 @@ void checkMemory(const std::vector<ObstaclePlan>& plans, const MemoryBudget& bud
 // ---------------------------------------------------------------------------------------------
 // Pass 3: building
 
-void buildObstacles(const ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out) {
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point start) {
+    return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+/// Rethrows a builder's or reader's InputError under the scene file, at `pointer` unless the
+/// error names a more precise one; the file the error came from (an OBJ, a .vdb) goes into the
+/// message.
+[[noreturn]] void rethrowUnder(const InputError& e, const std::string& sceneFile,
+                               const std::string& pointer) {
+    const bool ownPointer = !e.where().empty() && e.where()[0] == '/';
+    std::string message = e.message();
+    if (!ownPointer && !e.where().empty()) message = e.where() + ": " + message;
+    if (!e.file().empty()) message = e.file() + ": " + message;
+    throw InputError(sceneFile, ownPointer ? e.where() : pointer, message);
+}
+
+/// Reads the .vdb grids inside a CSG tree.
+void readTreeGrids(ShapeNode& root, const std::string& pointer, const std::string& sceneFile) {
+    forEachNode(root, pointer, [&](ShapeNode& node, const std::string& where) {
+        auto* g = std::get_if<GridShape>(&node.kind);
+        if (!g) return;
+        std::vector<LevelSetPtr> grids;
+        try {
+            grids = readLevelSets(g->file, g->grid, where);
+        } catch (const InputError& e) {
+            rethrowUnder(e, sceneFile, where);
+        }
+        if (grids.size() > 1) {
+            std::string names;
+            for (const LevelSetPtr& ls : grids) {
+                names += (names.empty() ? "" : ", ") + inQuotes(describe(*ls).name);
+            }
+            throw InputError(sceneFile, where + "/grid",
+                             g->file + " holds " + std::to_string(grids.size()) +
+                                 " level sets (" + names + "); name the one to use with \"grid\"");
+        }
+        g->levelSet = grids.front();
+    });
+}
+
+ObstacleBuild reportFor(const std::string& name, const std::string& type, const LevelSetPtr& ls) {
+    const LevelSetInfo info = describe(*ls);
+    ObstacleBuild b;
+    b.name = name;
+    b.type = type;
+    b.voxelSize = info.voxelSize;
+    b.activeVoxels = info.activeVoxels;
+    b.bytes = info.bytes;
+    return b;
+}
+
+void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out,
+                    BuildReport& report) {
     const std::string name =
         plan.name.empty() ? "obstacle_" + std::to_string(plan.index) : plan.name;
+    const Clock::time_point start = Clock::now();
     auto add = [&](std::string n, ObstacleShape shape) {
-        out.push_back(Obstacle{std::move(n), std::move(shape), plan.albedo});
+        Obstacle o{std::move(n), std::move(shape), plan.albedo};
+        o.voxelSize = plan.voxelSize;
+        o.halfWidth = plan.halfWidth;
+        out.push_back(std::move(o));
     };
     if (const auto* s = std::get_if<AnalyticSphere>(&plan.shape)) {
         add(name, *s);
     } else if (const auto* b = std::get_if<AnalyticBox>(&plan.shape)) {
         add(name, *b);
-    } else if (const auto* sl = std::get_if<SphereLevelSetPlan>(&plan.shape)) {
-        add(name, makeSphereLevelSet(sl->center, sl->radius, sl->voxelSize, sl->halfWidth, name));
-    } else if (const auto* bl = std::get_if<BoxLevelSetPlan>(&plan.shape)) {
-        add(name, makeBoxLevelSet(bl->lo, bl->hi, bl->voxelSize, bl->halfWidth, name));
+    } else if (auto* implicit = std::get_if<ImplicitPlan>(&plan.shape)) {
+        readTreeGrids(implicit->node, plan.pointer, file);
+        ShapeBuildNotes notes;
+        LevelSetPtr ls;
+        try {
+            ls = buildLevelSet(implicit->node, implicit->voxelSize, implicit->halfWidth, name,
+                               &notes);
+        } catch (const InputError& e) {
+            rethrowUnder(e, file, plan.pointer);
+        }
+        add(name, ls);
+        ObstacleBuild r = reportFor(name, plan.type, ls);
+        r.estimatedBytes = estimatedBytes(plan);
+        r.seconds = secondsSince(start);
+        if (notes.holesCapped) r.note = "capped " + std::to_string(notes.holesCapped) + " holes";
+        report.obstacles.push_back(r);
+        return;
     } else {
         const auto& vdb = std::get<VdbPlan>(plan.shape);
         std::vector<LevelSetPtr> grids;
         try {
             grids = readLevelSets(vdb.path, vdb.grid, plan.pointer);
         } catch (const InputError& e) {
-            // Name the scene file first (that is what the user edits), the .vdb in the message.
-            throw InputError(file, e.where().empty() ? plan.pointer : e.where(),
-                             e.file() + ": " + e.message());
+            rethrowUnder(e, file, plan.pointer);
         }
+        const double seconds = secondsSince(start);
         for (size_t j = 0; j < grids.size(); ++j) {
-            const LevelSetPtr& g = grids[j];
+            const LevelSetPtr g = transformLevelSet(grids[j], vdb.transform);
             const std::string gridName = describe(*g).name;
             // One grid takes the obstacle's name; several are told apart by their grid names.
             std::string n;
@@ -766,8 +1070,19 @@ void buildObstacles(const ObstaclePlan& plan, const std::string& file, std::vect
                 n = !gridName.empty() ? gridName : name + "/" + std::to_string(j);
             }
             add(n, g);
+            ObstacleBuild r = reportFor(n, plan.type, g);
+            // The file is read once for all its grids.
+            r.seconds = j == 0 ? seconds : 0.0;
+            r.note = "read from " + vdb.path;
+            report.obstacles.push_back(r);
         }
+        return;
     }
+    ObstacleBuild r;
+    r.name = name;
+    r.type = plan.type;
+    r.analytic = true;
+    report.obstacles.push_back(r);
 }
 
 Scene parseDocument(const Json& root, const Context& ctx) {
@@ -811,8 +1126,31 @@ Scene parseDocument(const Json& root, const Context& ctx) {
         }
     }
 
+    // Half-spaces without bounds are cut to the scene's; then their index range can be checked.
+    const Box3 bounds = sceneBounds(scene, plans);
+    for (ObstaclePlan& p : plans) {
+        auto* implicit = std::get_if<ImplicitPlan>(&p.shape);
+        if (!implicit) continue;
+        bool unbounded = false;
+        forEachNode(implicit->node, p.pointer, [&](ShapeNode& node, const std::string&) {
+            auto* half = std::get_if<HalfSpaceShape>(&node.kind);
+            if (half && half->boundsWS.empty()) {
+                half->boundsWS = bounds;
+                unbounded = true;
+            }
+        });
+        if (unbounded) {
+            checkIndexRange(Node(root, p.pointer, ctx), shapeBounds(implicit->node),
+                            implicit->voxelSize);
+        }
+    }
+
     checkMemory(plans, budget, ctx.file);
-    for (const ObstaclePlan& p : plans) buildObstacles(p, ctx.file, scene.obstacles);
+    scene.build.memoryLimitBytes = budget.limitBytes;
+    for (const ObstaclePlan& p : plans) scene.build.estimatedBytes += estimatedBytes(p);
+    const Clock::time_point start = Clock::now();
+    for (ObstaclePlan& p : plans) buildObstacles(p, ctx.file, scene.obstacles, scene.build);
+    scene.build.seconds = secondsSince(start);
     return scene;
 }
 
@@ -872,6 +1210,123 @@ Occluder Scene::makeOccluder() const {
     shapes.reserve(obstacles.size());
     for (const Obstacle& o : obstacles) shapes.push_back(o.shape);
     return Occluder(std::move(shapes));
+}
+
+// ---------------------------------------------------------------------------------------------
+// BuildReport
+
+uint64_t BuildReport::activeVoxels() const {
+    uint64_t n = 0;
+    for (const ObstacleBuild& o : obstacles) n += o.activeVoxels;
+    return n;
+}
+
+uint64_t BuildReport::bytes() const {
+    uint64_t n = 0;
+    for (const ObstacleBuild& o : obstacles) n += o.bytes;
+    return n;
+}
+
+namespace {
+
+/// 1234567 -> "1,234,567": voxel counts are read at a glance.
+std::string grouped(uint64_t n) {
+    std::string digits = std::to_string(n), out;
+    for (size_t i = 0; i < digits.size(); ++i) {
+        if (i > 0 && (digits.size() - i) % 3 == 0) out += ',';
+        out += digits[i];
+    }
+    return out;
+}
+
+std::string mebibytes(double bytes) {
+    std::ostringstream s;
+    s.setf(std::ios::fixed);
+    s.precision(bytes < 10.0 * 1024 * 1024 ? 2 : 0);
+    s << bytes / (1024.0 * 1024.0) << " MiB";
+    return s.str();
+}
+
+std::string secondsText(double seconds) {
+    std::ostringstream s;
+    s.setf(std::ios::fixed);
+    s.precision(seconds < 10.0 ? 3 : 1);
+    s << seconds << " s";
+    return s.str();
+}
+
+}  // namespace
+
+std::string BuildReport::toText() const {
+    std::ostringstream out;
+    for (const ObstacleBuild& o : obstacles) {
+        out << "obstacle " << inQuotes(o.name) << " (" << o.type << "): ";
+        if (o.analytic) {
+            out << "analytic, no level set\n";
+            continue;
+        }
+        // Grids store their voxel size in single precision: print what the user wrote.
+        char voxel[32];
+        std::snprintf(voxel, sizeof voxel, "%.6g", o.voxelSize);
+        out << grouped(o.activeVoxels) << " voxels, " << mebibytes(double(o.bytes)) << ", "
+            << secondsText(o.seconds) << " (voxel " << voxel;
+        if (o.estimatedBytes > 0.0) out << ", estimated " << mebibytes(o.estimatedBytes);
+        if (!o.note.empty()) out << ", " << o.note;
+        out << ")\n";
+    }
+    out << "level sets: " << grouped(activeVoxels()) << " voxels, " << mebibytes(double(bytes()))
+        << " in " << secondsText(seconds) << " (estimate " << mebibytes(estimatedBytes)
+        << ", limit " << bytesText(memoryLimitBytes) << ")\n";
+    return out.str();
+}
+
+std::string BuildReport::toJson() const {
+    Json j;
+    j["seconds"] = seconds;
+    j["active_voxels"] = activeVoxels();
+    j["bytes"] = bytes();
+    j["estimated_bytes"] = estimatedBytes;
+    j["memory_limit_bytes"] = memoryLimitBytes;
+    j["obstacles"] = Json::array();
+    for (const ObstacleBuild& o : obstacles) {
+        j["obstacles"].push_back({{"name", o.name},
+                                  {"type", o.type},
+                                  {"analytic", o.analytic},
+                                  {"voxel_size", o.voxelSize},
+                                  {"active_voxels", o.activeVoxels},
+                                  {"bytes", o.bytes},
+                                  {"estimated_bytes", o.estimatedBytes},
+                                  {"seconds", o.seconds},
+                                  {"note", o.note}});
+    }
+    return j.dump();
+}
+
+std::vector<LevelSetPtr> Scene::obstacleLevelSets() const {
+    std::vector<LevelSetPtr> out;
+    std::set<std::string> used;
+    for (size_t i = 0; i < obstacles.size(); ++i) {
+        const Obstacle& o = obstacles[i];
+        std::string name = o.name;
+        for (int k = 0; !used.insert(name).second; ++k) {
+            name = o.name + "_" + std::to_string(i) + (k ? "_" + std::to_string(k) : "");
+        }
+        if (const auto* ls = std::get_if<LevelSetPtr>(&o.shape)) {
+            out.push_back(renamedLevelSet(*ls, name));
+            continue;
+        }
+        ShapeNode node;
+        if (const auto* s = std::get_if<AnalyticSphere>(&o.shape)) {
+            node.kind = SphereShape{s->center, s->radius};
+        } else {
+            const auto& b = std::get<AnalyticBox>(o.shape);
+            node.kind = BoxShape{0.5 * (b.lo + b.hi), b.hi - b.lo, 0.0};
+        }
+        const double voxel = o.voxelSize > 0.0 ? o.voxelSize : levelSet.voxelSize;
+        const double halfWidth = o.halfWidth > 0.0 ? o.halfWidth : levelSet.halfWidth;
+        out.push_back(buildLevelSet(node, voxel, halfWidth, name));
+    }
+    return out;
 }
 
 }  // namespace penumbra

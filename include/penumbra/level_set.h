@@ -31,6 +31,11 @@ struct LevelSetInfo {
 };
 LevelSetInfo describe(const LevelSet& ls);
 
+/// The level set's value at a world-space point: trilinear interpolation of the voxel values
+/// (the signed distance within the band, +-background beyond it). Makes an accessor per call:
+/// for tests and occasional queries, not for inner loops.
+double sampleLevelSet(const LevelSet& ls, const Vec3& pointWS);
+
 /// Sphere level set built with OpenVDB's createLevelSetSphere.
 LevelSetPtr makeSphereLevelSet(const Vec3& center, double radius, double voxelSize,
                                double halfWidthVoxels, const std::string& name = "sphere");
@@ -46,7 +51,19 @@ LevelSetPtr makeBoxLevelSet(const Vec3& lo, const Vec3& hi, double voxelSize,
 std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::string& gridName,
                                        const std::string& where = "");
 
-/// Writes level sets as named grids to a .vdb file (atomically: temporary name, then rename).
+/// Writes level sets as named grids to a .vdb file (atomically: a temporary name in the same
+/// directory, then rename). Throws std::runtime_error when the file cannot be written.
 void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids);
+
+struct VdbWriteOptions {
+    /// Store values as 16-bit floats: about half the file, values to ~3 significant digits
+    /// (1e-3 of the band, far below a voxel). Readers get float grids back.
+    bool halfFloat = false;
+};
+void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids,
+                    const VdbWriteOptions& options);
+
+/// The same level set under another grid name; the voxels are shared.
+LevelSetPtr renamedLevelSet(const LevelSetPtr& levelSet, const std::string& name);
 
 }  // namespace penumbra

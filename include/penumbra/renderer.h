@@ -16,6 +16,11 @@
 ///   needed.
 /// - `Method::AciPixel` runs the full ACI at every pixel against every obstacle: no culling, no
 ///   coherence, no interpolation. It is the reference the pipeline is measured against.
+/// - The Monte Carlo methods of monte_carlo.h (`Reference`, `McAdaptive`, `McSolidAngle`,
+///   `McRatio`) sit behind the same front end as `Aci`: the same spans, the same shaft culling
+///   and closed form for unshadowed pixels, so they spend shadow rays on the same pixels; each
+///   pixel that needs rays gets one estimate (no coherence, no interpolation). Their random
+///   streams are seeded per pixel and light (`mcSeed(x, y, light index, mc.seed)`).
 ///
 /// Units: world space, scene units; images are linear radiance.
 /// Thread safety: render() uses TBB internally (one task arena of `threads` workers, rows in
@@ -31,14 +36,24 @@
 #include "penumbra/contour_integrator.h"
 #include "penumbra/image_io.h"
 #include "penumbra/math.h"
+#include "penumbra/monte_carlo.h"
 #include "penumbra/scene.h"
 #include "penumbra/stats.h"
 
 namespace penumbra {
 
-enum class Method { Aci, AciPixel };
+enum class Method { Aci, AciPixel, Reference, McAdaptive, McSolidAngle, McRatio };
 
-/// The command-line name of a method: "aci", "aci-pixel".
+/// True for the Monte Carlo methods (Reference, McAdaptive, McSolidAngle, McRatio).
+bool isMonteCarlo(Method method);
+
+/// The shadow rays per estimate a Monte Carlo method uses when RenderSettings::mc.samples is 0:
+/// 1024 for Reference (the paper's reference), 16 for McSolidAngle and McRatio, and a cap of
+/// 1024 for McAdaptive (whose threshold decides).
+int defaultSamples(Method method);
+
+/// The command-line name of a method: "aci", "aci-pixel", "reference", "mc-adaptive",
+/// "mc-solid-angle", "mc-ratio".
 const char* methodName(Method method);
 /// Inverse of methodName; throws InputError whose `where` is `flag` for an unknown name.
 Method parseMethod(const std::string& name, const std::string& flag = "--method");
@@ -61,6 +76,14 @@ struct RenderSettings {
     bool coherence = true;     ///< off: ACI at every pixel of a span that has candidates
     bool adaptiveGrid = true;  ///< section 5's adaptive first-level density
     int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
+    /// Monte Carlo settings (samples, mc-adaptive's threshold, seed). `samples` 0 (the default
+    /// here) takes defaultSamples(method); rayOffset is taken from `aci.rayOffset`, and each
+    /// pixel's seed is mcSeed(x, y, light index, mc.seed).
+    McSettings mc = [] {
+        McSettings s;
+        s.samples = 0;
+        return s;
+    }();
 };
 
 /// Extra images (AOVs), one channel each, same size as the picture.

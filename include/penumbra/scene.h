@@ -7,6 +7,7 @@
 /// offending value (e.g. `scene.json: /obstacles/2/radius: must be > 0, got -1`).
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -42,6 +43,41 @@ struct Obstacle {
     std::string name;
     ObstacleShape shape;
     Rgb albedo{0.8};
+    /// For analytic shapes, the level-set resolution to use where one is needed (`penumbra
+    /// bake`): the obstacle's voxel_size and half_width in the scene file; 0 takes the scene's.
+    double voxelSize = 0.0;
+    double halfWidth = 0.0;
+};
+
+/// What building (or reading) one obstacle's level set cost.
+struct ObstacleBuild {
+    std::string name;
+    std::string type;          ///< the scene file's type ("sphere", "csg", "mesh", "vdb", ...)
+    bool analytic = false;     ///< an exact shape: nothing was built
+    double voxelSize = 0.0;    ///< of the level set (0 for analytic shapes)
+    uint64_t activeVoxels = 0;
+    uint64_t bytes = 0;        ///< in-memory size of the level set's tree
+    double estimatedBytes = 0.0;  ///< the pre-build estimate checked against the memory limit
+    double seconds = 0.0;      ///< wall time to build it, or to read its file
+    std::string note;          ///< e.g. "capped 2 holes", "read from x.vdb"
+};
+
+/// The memory and time report of loadScene's building pass, for render statistics and
+/// `--verbose` output. The library does not print it; toText() and toJson() format it.
+struct BuildReport {
+    std::vector<ObstacleBuild> obstacles;  ///< one per Scene::obstacles entry, same order
+    double seconds = 0.0;                  ///< wall time of building and reading all of them
+    double estimatedBytes = 0.0;           ///< sum of the estimates
+    double memoryLimitBytes = 0.0;         ///< the limit they were checked against
+
+    uint64_t activeVoxels() const;
+    uint64_t bytes() const;
+    /// One line per obstacle and a total, e.g.
+    /// `obstacle 'ring' (torus): 181,234 voxels, 2.1 MiB, 0.04 s (voxel 0.01)`.
+    std::string toText() const;
+    /// {"seconds": .., "active_voxels": .., "bytes": .., "estimated_bytes": ..,
+    ///  "memory_limit_bytes": .., "obstacles": [{"name": .., "type": .., ...}]}
+    std::string toJson() const;
 };
 
 /// Global level-set settings: the voxel size of implicit primitives and the narrow band.
@@ -58,15 +94,22 @@ struct Scene {
     std::vector<PlaneReceiver> receivers;
     LevelSetSettings levelSet;
     Rgb background{0.0};
+    BuildReport build;  ///< filled by loadScene / parseScene
 
     /// Index of the light named `name`; with an empty name, the only light. Throws InputError
     /// when there is no such light or the choice is ambiguous.
     size_t lightIndex(const std::string& name) const;
     /// An Occluder over every obstacle, in scene order.
     Occluder makeOccluder() const;
+    /// Every obstacle as a level set whose grid is named after it, in scene order, for
+    /// `penumbra bake`: level sets share their voxels (only the name changes); analytic shapes
+    /// are voxelized at their voxelSize and halfWidth (or the scene's). A name already taken by
+    /// an earlier obstacle gets "_K" appended (K: the obstacle's index), so names are unique.
+    std::vector<LevelSetPtr> obstacleLevelSets() const;
 };
 
-/// Loads and validates a scene file; builds the level sets of implicit obstacles.
+/// Loads and validates a scene file; builds the level sets of implicit obstacles, meshes and
+/// CSG trees (shape.h) and reads the .vdb files. Scene::build reports what that cost.
 Scene loadScene(const std::string& path);
 
 /// Same from text; `file` is used in messages and `baseDir` resolves relative paths.

@@ -1,8 +1,11 @@
 // `penumbra probe`: point queries in the manner of Radiance's `rtrace -I`. Reads sensor points
 // as CSV on stdin (header x,y,z,nx,ny,nz) and writes, in the same order, the form factor to one
 // light, its gradient with respect to the sensor position (normal fixed) and the shadow rays
-// spent, as CSV on stdout.
+// spent, as CSV on stdout. `--method` picks the estimator: aci (approximate contour
+// integration) or one of the Monte Carlo baselines of monte_carlo.h, which estimate no
+// gradient (their dF columns are 0).
 #include <cmath>
+#include <cstdint>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -12,6 +15,8 @@
 #include "cli/commands.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
+#include "penumbra/monte_carlo.h"
+#include "penumbra/renderer.h"
 #include "penumbra/scene.h"
 
 namespace penumbra::cli {
@@ -26,6 +31,12 @@ struct ProbeOptions {
     int steps = 5;
     bool distanceGuided = false;
     bool straightChords = false;
+    int samples = 0;  // 0: the method's default (renderer.h's defaultSamples)
+    double mcThreshold = 0.01;
+    int mcMaxDepth = 8;
+    int mcInitialDepth = 0;
+    uint64_t seed = 0;
+    bool samplesGiven = false;
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -52,14 +63,22 @@ double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
 }
 
 int runProbe(const ProbeOptions& opt) {
-    if (opt.method != "aci")
-        throw InputError("", "--method", "unknown method '" + opt.method + "' (probe supports: aci)");
+    const Method method = parseMethod(opt.method, "--method");
+    if (method != Method::Aci && !isMonteCarlo(method))
+        throw InputError("", "--method",
+                         "probe supports aci, reference, mc-adaptive, mc-solid-angle and "
+                         "mc-ratio, got '" + opt.method + "'");
+    if (opt.samplesGiven && !isMonteCarlo(method))
+        throw InputError("", "--samples", "only applies to the Monte Carlo methods");
+    if (!(opt.mcThreshold > 0.0) || !std::isfinite(opt.mcThreshold))
+        throw InputError("", "--mc-threshold", "must be a finite number > 0");
     if ((static_cast<long>(opt.grid) << (opt.steps + 1)) > kMaxLatticeUnits)
         throw InputError("", "--aci-grid/--aci-steps",
                          "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
                              " (the shared sample lattice would not fit in memory)");
     const Scene scene = loadScene(opt.scene);
-    const RectLight& light = scene.lights[scene.lightIndex(opt.light)];
+    const size_t lightIndex = scene.lightIndex(opt.light);
+    const RectLight& light = scene.lights[lightIndex];
     const Occluder occluder = scene.makeOccluder();
     Occluder::Query query = occluder.makeQuery();
     AciSettings settings;
@@ -70,6 +89,12 @@ int runProbe(const ProbeOptions& opt) {
     // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
     settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
     ContourIntegrator integrator(settings);
+    McSettings mc;
+    mc.samples = opt.samples > 0 ? opt.samples : defaultSamples(method);
+    mc.threshold = opt.mcThreshold;
+    mc.maxDepth = opt.mcMaxDepth;
+    mc.initialDepth = opt.mcInitialDepth;
+    mc.rayOffset = settings.rayOffset;
 
     // Read everything first, so that bad input produces no partial output.
     std::string line;
@@ -102,8 +127,18 @@ int runProbe(const ProbeOptions& opt) {
     std::ostringstream out;
     out << std::setprecision(12);
     out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays\n";
-    for (const Receiver& r : points) {
-        const Estimate e = integrator.evaluate(r, light, query);
+    for (size_t i = 0; i < points.size(); ++i) {
+        const Receiver& r = points[i];
+        // Seeded by the point's position in the input, so a run does not depend on anything else.
+        mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), opt.seed);
+        Estimate e;
+        switch (method) {
+            case Method::Reference: e = monteCarloReference(r, light, query, mc); break;
+            case Method::McAdaptive: e = monteCarloAdaptive(r, light, query, mc); break;
+            case Method::McSolidAngle: e = monteCarloSolidAngle(r, light, query, mc); break;
+            case Method::McRatio: e = monteCarloRatio(r, light, query, mc); break;
+            default: e = integrator.evaluate(r, light, query); break;
+        }
         out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << e.formFactor << ','
             << e.gradient.x << ',' << e.gradient.y << ',' << e.gradient.z << ','
             << e.counts.shadowRays() << '\n';
@@ -121,7 +156,28 @@ Runner addProbeCommand(CLI::App& app) {
         "Form factor and its gradient at sensor points: CSV x,y,z,nx,ny,nz on stdin, CSV "
         "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays on stdout");
     sub->add_option("scene", opt->scene, "Scene file (JSON)")->required();
-    sub->add_option("--method", opt->method, "Estimator: aci (approximate contour integration)")
+    sub->add_option("--method", opt->method,
+                    "Estimator: aci (approximate contour integration), or the Monte Carlo "
+                    "reference, mc-adaptive, mc-solid-angle, mc-ratio (no gradient: dF columns "
+                    "are 0)")
+        ->capture_default_str();
+    sub->add_option("--samples", opt->samples,
+                    "Monte Carlo: shadow rays per point (mc-adaptive: at most); default 1024 "
+                    "for reference and mc-adaptive, 16 for mc-solid-angle and mc-ratio")
+        ->check(CLI::Range(1, 1 << 20))
+        ->each([opt](const std::string&) { opt->samplesGiven = true; });
+    sub->add_option("--mc-threshold", opt->mcThreshold,
+                    "mc-adaptive: split a light cell while the standard error of its "
+                    "contribution exceeds this fraction of the unoccluded form factor")
+        ->capture_default_str();
+    sub->add_option("--mc-max-depth", opt->mcMaxDepth, "mc-adaptive: deepest subdivision level")
+        ->check(CLI::Range(0, 24))
+        ->capture_default_str();
+    sub->add_option("--mc-initial-depth", opt->mcInitialDepth,
+                    "mc-adaptive: start from a 2^d x 2^d grid of light cells (4 rays each)")
+        ->check(CLI::Range(0, 8))
+        ->capture_default_str();
+    sub->add_option("--seed", opt->seed, "Monte Carlo: seed mixed with each point's line index")
         ->capture_default_str();
     sub->add_option("--light", opt->light, "Name of the light (default: the only light)");
     sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-64)")

@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -31,6 +33,11 @@ struct RenderOptions {
     int aciGrid = 2;
     int aciSteps = 5;
     int maxSpan = 32;
+    int samples = 0;             // 0: the method's default (defaultSamples)
+    double mcThreshold = 0.01;
+    int mcMaxDepth = 8;
+    int mcInitialDepth = 0;
+    uint64_t seed = 0;
     std::string stats;
     std::string aovRays, aovFormFactor, aovGradient, aovMask;
     bool quiet = false;
@@ -88,8 +95,9 @@ std::string formatNumber(double v) {
     return s.str();
 }
 
-ImageMetadata metadataFor(const RenderOptions& o, const RenderStats& st) {
-    return {
+ImageMetadata metadataFor(const RenderOptions& o, const RenderSettings& settings,
+                          const RenderStats& st) {
+    ImageMetadata m = {
         {"ImageDescription", "penumbra render of " + o.scene},
         {"penumbra:scene", o.scene},
         {"penumbra:method", st.method},
@@ -107,6 +115,18 @@ ImageMetadata metadataFor(const RenderOptions& o, const RenderStats& st) {
         {"penumbra:aci_evaluations", std::to_string(st.aciEvaluations)},
         {"penumbra:restarts", std::to_string(st.restarts)},
     };
+    if (isMonteCarlo(settings.method)) {
+        const int samples =
+            settings.mc.samples > 0 ? settings.mc.samples : defaultSamples(settings.method);
+        m.push_back({"penumbra:samples", std::to_string(samples)});
+        m.push_back({"penumbra:seed", std::to_string(settings.mc.seed)});
+        if (settings.method == Method::McAdaptive) {
+            m.push_back({"penumbra:mc_threshold", formatNumber(settings.mc.threshold)});
+            m.push_back({"penumbra:mc_max_depth", std::to_string(settings.mc.maxDepth)});
+            m.push_back({"penumbra:mc_initial_depth", std::to_string(settings.mc.initialDepth)});
+        }
+    }
+    return m;
 }
 
 float maxOf(const Image& img) {
@@ -144,6 +164,19 @@ int runRender(const RenderOptions& o) {
     requireRange("--aci-grid", o.aciGrid, 1, 32);
     requireRange("--aci-steps", o.aciSteps, 1, 12);
     requireRange("--max-span", o.maxSpan, 1, 4096);
+    if (o.given("--samples")) {
+        if (!isMonteCarlo(settings.method)) {
+            throw InputError("", "--samples",
+                             "only applies to the Monte Carlo methods (reference, mc-adaptive, "
+                             "mc-solid-angle, mc-ratio)");
+        }
+        requireRange("--samples", o.samples, 1, 1 << 20);
+    }
+    if (!(o.mcThreshold > 0.0) || !std::isfinite(o.mcThreshold)) {
+        throw InputError("", "--mc-threshold", "must be a finite number > 0");
+    }
+    requireRange("--mc-max-depth", o.mcMaxDepth, 0, 24);
+    requireRange("--mc-initial-depth", o.mcInitialDepth, 0, 8);
     if ((long(o.aciGrid) << (o.aciSteps + 1)) > kMaxLatticeUnits) {
         throw InputError("", "--aci-grid/--aci-steps",
                          "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
@@ -161,6 +194,11 @@ int runRender(const RenderOptions& o) {
     settings.aci.steps = o.aciSteps;
     settings.aci.gradient = !o.aovGradient.empty();
     settings.maxSpan = o.maxSpan;
+    settings.mc.samples = o.samples;
+    settings.mc.threshold = o.mcThreshold;
+    settings.mc.maxDepth = o.mcMaxDepth;
+    settings.mc.initialDepth = o.mcInitialDepth;
+    settings.mc.seed = o.seed;
 
     Scene scene = loadScene(o.scene);
     if (!scene.camera) {
@@ -173,7 +211,7 @@ int runRender(const RenderOptions& o) {
     reporter.finish();
 
     const RenderStats& st = result.stats;
-    ImageMetadata metadata = metadataFor(o, st);
+    ImageMetadata metadata = metadataFor(o, settings, st);
     writeImage(o.output, result.color, metadata, "-o");
     if (!o.aovRays.empty()) {
         writeScalarAov(o.aovRays, "--aov-rays", result.aovs.shadowRays, true, metadata);
@@ -213,7 +251,9 @@ Runner addRenderCommand(CLI::App& app) {
         ->required();
     cmd->add_option("--method", o->method,
                     "aci: the section 5 pipeline (shaft culling, shadow-pattern coherence, "
-                    "interpolation); aci-pixel: full ACI at every pixel")
+                    "interpolation); aci-pixel: full ACI at every pixel; reference, "
+                    "mc-adaptive, mc-solid-angle, mc-ratio: Monte Carlo estimators behind the "
+                    "same culling (docs/rendering.md)")
         ->capture_default_str();
     cmd->add_option("--threads", o->threads, "Worker threads (default: every hardware thread)");
     cmd->add_option("--width", o->width, "Image width in pixels (default: the camera's)");
@@ -224,6 +264,22 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_option("--aci-steps", o->aciSteps, "Dichotomy steps n along a crossed side")
         ->capture_default_str();
     cmd->add_option("--max-span", o->maxSpan, "Longest span of pixels shaded together")
+        ->capture_default_str();
+    cmd->add_option("--samples", o->samples,
+                    "Monte Carlo methods: shadow rays per estimate (mc-adaptive: at most); "
+                    "default 1024 for reference and mc-adaptive, 16 for mc-solid-angle and "
+                    "mc-ratio");
+    cmd->add_option("--mc-threshold", o->mcThreshold,
+                    "mc-adaptive: split a light cell while the standard error of its "
+                    "contribution exceeds this fraction of the unoccluded form factor")
+        ->capture_default_str();
+    cmd->add_option("--mc-max-depth", o->mcMaxDepth, "mc-adaptive: deepest subdivision level")
+        ->capture_default_str();
+    cmd->add_option("--mc-initial-depth", o->mcInitialDepth,
+                    "mc-adaptive: start from a 2^d x 2^d grid of light cells (4 rays each)")
+        ->capture_default_str();
+    cmd->add_option("--seed", o->seed,
+                    "Monte Carlo methods: seed mixed with each pixel's coordinates and the light")
         ->capture_default_str();
     cmd->add_option("--aov-rays", o->aovRays, "Shadow rays per pixel (.png: heat map)");
     cmd->add_option("--aov-ff", o->aovFormFactor, "Sum of the form factors (.png: scaled grey)");
