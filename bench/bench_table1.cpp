@@ -11,13 +11,13 @@
 //   bench_table1 [SCENE.json] [--size N] [--threads N] [--ref-samples N] [--sweep-size N]
 //                [--out DIR] [--work DIR] [--no-plot] [--quick]
 //
-// SCENE defaults to vdb_scenes/table1.json (run from the source tree). --size 800 (the paper's), --threads 2, --ref-samples 1024 (the check
-// reference gets 4x), --sweep-size 400 (the budget sweep renders at this size against its own
-// reference), --out docs/img (crops and plot), --work a scratch directory for the EXRs and
-// gnuplot files (default /tmp/penumbra_table1). --quick: 200 x 200, reference 256, for a smoke
-// run. Mean differences are 255 x |test - reference| averaged over the pixels where shadow rays
-// were cast (the reference's and ACI's masks) and the three channels; the same over all pixels
-// is printed beside.
+// SCENE defaults to vdb_scenes/table1.json (run from the source tree). --size 800 (the paper's),
+// --threads 2, --ref-samples 1024 (the check reference gets 4x), --sweep-size 400 (the budget sweep
+// renders at this size against its own reference), --out docs/img (crops and plot), --work a
+// scratch directory for the EXRs and gnuplot files (default /tmp/penumbra_table1). --quick: 200 x
+// 200, reference 256, for a smoke run. Mean differences are 255 x |test - reference| averaged over
+// the pixels where shadow rays were cast (the reference's and ACI's masks) and the three channels;
+// the same over all pixels is printed beside.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -61,13 +61,20 @@ Args parseArgs(int argc, char** argv) {
             }
             return argv[++i];
         };
-        if (s == "--size") a.size = std::atoi(next().c_str());
-        else if (s == "--threads") a.threads = std::atoi(next().c_str());
-        else if (s == "--ref-samples") a.refSamples = std::atoi(next().c_str());
-        else if (s == "--sweep-size") a.sweepSize = std::atoi(next().c_str());
-        else if (s == "--out") a.out = next();
-        else if (s == "--work") a.work = next();
-        else if (s == "--no-plot") a.plot = false;
+        if (s == "--size")
+            a.size = std::atoi(next().c_str());
+        else if (s == "--threads")
+            a.threads = std::atoi(next().c_str());
+        else if (s == "--ref-samples")
+            a.refSamples = std::atoi(next().c_str());
+        else if (s == "--sweep-size")
+            a.sweepSize = std::atoi(next().c_str());
+        else if (s == "--out")
+            a.out = next();
+        else if (s == "--work")
+            a.work = next();
+        else if (s == "--no-plot")
+            a.plot = false;
         else if (s == "--quick") {
             a.size = 200;
             a.refSamples = 256;
@@ -99,10 +106,14 @@ struct Row {
 };
 
 class Bench {
-public:
+  public:
     Bench(const Scene& scene, int size, int threads, const Image* reference, const Image* check,
           const Image* mask)
-        : mScene(scene), mSize(size), mThreads(threads), mRef(reference), mCheck(check),
+        : mScene(scene),
+          mSize(size),
+          mThreads(threads),
+          mRef(reference),
+          mCheck(check),
           mMask(mask) {}
 
     RenderSettings base(Method m) const {
@@ -129,7 +140,7 @@ public:
         return row;
     }
 
-private:
+  private:
     const Scene& mScene;
     int mSize, mThreads;
     const Image* mRef;
@@ -162,8 +173,10 @@ Row searchThreshold(const Bench& bench, RenderSettings rs, const std::string& na
         if (tried) tried->push_back(r);
         // Too large a value: move the threshold the way that lowers it.
         const bool tooLarge = v > target;
-        if (tooLarge == valueFallsWithThreshold) lo = mid;
-        else hi = mid;
+        if (tooLarge == valueFallsWithThreshold)
+            lo = mid;
+        else
+            hi = mid;
     }
     return best;
 }
@@ -196,8 +209,7 @@ void printTable(const std::vector<Row>& rows, const Row& aci, const Row& ref) {
         }
         std::printf("%-50s %14s %9.2f %s %s %10.3f %8.2f | %8.2f %s %8.2f\n", r.name.c_str(),
                     thousands(s.shadowRays).c_str(), s.shadowRaysPerViewingRay(), diff, diffAll,
-                    r.diffCheck, s.seconds,
-                    raysPerVr(r) / std::max(1e-12, raysPerVr(aci)), ratio,
+                    r.diffCheck, s.seconds, raysPerVr(r) / std::max(1e-12, raysPerVr(aci)), ratio,
                     s.seconds / std::max(1e-12, aci.result.stats.seconds));
     }
 }
@@ -208,7 +220,8 @@ Image crop(const Image& img, int x0, int y0, int w, int h, int zoom) {
     for (int y = 0; y < h * zoom; ++y) {
         for (int x = 0; x < w * zoom; ++x) {
             for (int c = 0; c < 3; ++c) {
-                out.at(x, y, c) = img.at(x0 + x / zoom, y0 + y / zoom, std::min(c, img.channels - 1));
+                out.at(x, y, c) =
+                    img.at(x0 + x / zoom, y0 + y / zoom, std::min(c, img.channels - 1));
             }
         }
     }
@@ -259,8 +272,8 @@ int main(int argc, char** argv) {
         refSettings.mc.samples = args.refSamples;
         std::fprintf(stderr, "rendering the reference (%d rays per viewing ray)...\n",
                      args.refSamples);
-        Row ref = plain.run("reference (" + std::to_string(args.refSamples) + " rays)",
-                            refSettings);
+        Row ref =
+            plain.run("reference (" + std::to_string(args.refSamples) + " rays)", refSettings);
         RenderSettings checkSettings = refSettings;
         checkSettings.mc.samples = 4 * args.refSamples;
         checkSettings.mc.seed = 1;
@@ -339,8 +352,9 @@ int main(int argc, char** argv) {
             rs.mc.initialDepth = depth;
             rs.mc.threshold = 1e-4;
             const Row r = sweep.run("probe", rs);
-            std::fprintf(stderr, "  mc-adaptive d0=%d threshold 1e-4 at %d: rays/VR %.1f, mean "
-                                 "difference %.4f (aci %.4f)\n",
+            std::fprintf(stderr,
+                         "  mc-adaptive d0=%d threshold 1e-4 at %d: rays/VR %.1f, mean "
+                         "difference %.4f (aci %.4f)\n",
                          depth, args.sweepSize, raysPerVr(r), r.diff, sweepAci.diff);
             if (r.diff <= sweepAci.diff) depthB = depth;
         }
@@ -355,11 +369,14 @@ int main(int argc, char** argv) {
                 const double mid = 0.5 * (lo + hi);
                 adaptiveB.mc.threshold = std::exp(mid);
                 const Row r = sweep.run("probe", adaptiveB);
-                std::fprintf(stderr, "  mc-adaptive d0=%d threshold %.3g at %d: rays/VR %.1f, "
-                                     "mean difference %.4f\n",
+                std::fprintf(stderr,
+                             "  mc-adaptive d0=%d threshold %.3g at %d: rays/VR %.1f, "
+                             "mean difference %.4f\n",
                              depthB, adaptiveB.mc.threshold, args.sweepSize, raysPerVr(r), r.diff);
-                if (r.diff <= sweepAci.diff || !reachedB) lo = mid;
-                else hi = mid;
+                if (r.diff <= sweepAci.diff || !reachedB)
+                    lo = mid;
+                else
+                    hi = mid;
             }
             adaptiveB.mc.threshold = std::exp(lo);
         }
@@ -375,32 +392,28 @@ int main(int argc, char** argv) {
         const int equalSamples = std::max(1, int(std::lround(aciRays)));
         RenderSettings sa = bench.base(Method::McSolidAngle);
         sa.mc.samples = equalSamples;
-        Row solidAngle = bench.run("mc-solid-angle, ACI's rays (" + std::to_string(equalSamples) +
-                                       " samples)",
-                                   sa);
+        Row solidAngle = bench.run(
+            "mc-solid-angle, ACI's rays (" + std::to_string(equalSamples) + " samples)", sa);
         RenderSettings ratioSettings = bench.base(Method::McRatio);
         ratioSettings.mc.samples = equalSamples;
-        Row ratio = bench.run("mc-ratio, ACI's rays (" + std::to_string(equalSamples) +
-                                  " samples)",
+        Row ratio = bench.run("mc-ratio, ACI's rays (" + std::to_string(equalSamples) + " samples)",
                               ratioSettings);
         // Stratified area sampling (the reference's estimator) at the same budget.
         RenderSettings area = bench.base(Method::Reference);
         area.mc.samples = equalSamples;
         area.mc.seed = 7;
-        Row areaRow = bench.run("stratified area sampling, ACI's rays (" +
-                                    std::to_string(equalSamples) + ")",
-                                area);
+        Row areaRow = bench.run(
+            "stratified area sampling, ACI's rays (" + std::to_string(equalSamples) + ")", area);
 
         // mc-solid-angle at ACI's wall time: its rays are cheaper than ACI's (no lattice, no
         // contour), so at equal time it gets more of them (scaled by the measured times).
-        const int timeSamples = std::max(
-            1, int(std::lround(equalSamples * aci.result.stats.seconds /
-                               std::max(1e-6, solidAngle.result.stats.seconds))));
+        const int timeSamples =
+            std::max(1, int(std::lround(equalSamples * aci.result.stats.seconds /
+                                        std::max(1e-6, solidAngle.result.stats.seconds))));
         RenderSettings saTime = sa;
         saTime.mc.samples = timeSamples;
-        Row solidAngleTime = bench.run("mc-solid-angle, ACI's time (" +
-                                           std::to_string(timeSamples) + " samples)",
-                                       saTime);
+        Row solidAngleTime = bench.run(
+            "mc-solid-angle, ACI's time (" + std::to_string(timeSamples) + " samples)", saTime);
 
         // ACI tuned for fewer rays (beyond the paper, docs/estimator.md): distance-guided
         // dichotomy with 2 steps, fixed first-level grid; and mc-solid-angle at its rays.
@@ -412,9 +425,9 @@ int main(int argc, char** argv) {
         const int tunedSamples = std::max(1, int(std::lround(raysPerVr(aciTuned))));
         RenderSettings saTuned = sa;
         saTuned.mc.samples = tunedSamples;
-        Row solidAngleTuned = bench.run("mc-solid-angle, tuned ACI's rays (" +
-                                            std::to_string(tunedSamples) + " samples)",
-                                        saTuned);
+        Row solidAngleTuned = bench.run(
+            "mc-solid-angle, tuned ACI's rays (" + std::to_string(tunedSamples) + " samples)",
+            saTuned);
 
         std::vector<Row> rows;
         rows.push_back(std::move(ref));
@@ -429,31 +442,34 @@ int main(int argc, char** argv) {
         rows.push_back(std::move(solidAngleTuned));
         const Row& refRow = rows[0];
         const Row& aciRow = rows[1];
-        std::printf("\nTable 1 (%d x %d; mean differences in 8-bit units over the %s pixels where "
-                    "shadow rays were cast, against the %d-ray reference; 'all px' over every "
-                    "pixel; 'vs 4x ref' against the %d-ray reference)\n",
-                    args.size, args.size, thousands(compareImages(refImage, refImage, &mask).masked.pixels).c_str(),
-                    args.refSamples, 4 * args.refSamples);
+        std::printf(
+            "\nTable 1 (%d x %d; mean differences in 8-bit units over the %s pixels where "
+            "shadow rays were cast, against the %d-ray reference; 'all px' over every "
+            "pixel; 'vs 4x ref' against the %d-ray reference)\n",
+            args.size, args.size,
+            thousands(compareImages(refImage, refImage, &mask).masked.pixels).c_str(),
+            args.refSamples, 4 * args.refSamples);
         printTable(rows, aciRow, refRow);
-        std::printf("\nreference's own error: %.3f over the masked pixels, %.3f over all pixels "
-                    "(against the %d-ray reference, an independent seed); the 4x reference took "
-                    "%.1f s\n",
-                    refRow.diffCheck, refAll, 4 * args.refSamples, check.result.stats.seconds);
-        std::printf("targets: ACI <= 12 rays/VR (%.2f) at mean difference <= 0.25 (%.3f); at "
-                    "equal rays mc-adaptive >= 4x ACI's difference (%.2fx), mc-solid-angle >= 2x "
-                    "(%.2fx)\n",
-                    raysPerVr(aciRow), aciRow.diff, rows[2].diff / aciRow.diff,
-                    rows[4].diff / aciRow.diff);
+        std::printf(
+            "\nreference's own error: %.3f over the masked pixels, %.3f over all pixels "
+            "(against the %d-ray reference, an independent seed); the 4x reference took "
+            "%.1f s\n",
+            refRow.diffCheck, refAll, 4 * args.refSamples, check.result.stats.seconds);
+        std::printf(
+            "targets: ACI <= 12 rays/VR (%.2f) at mean difference <= 0.25 (%.3f); at "
+            "equal rays mc-adaptive >= 4x ACI's difference (%.2fx), mc-solid-angle >= 2x "
+            "(%.2fx)\n",
+            raysPerVr(aciRow), aciRow.diff, rows[2].diff / aciRow.diff, rows[4].diff / aciRow.diff);
 
         const RenderStats& as = aciRow.result.stats;
-        std::printf("where ACI's rays go: %s first-level (corners of patterns and evaluations), "
-                    "%s second-level; %s full evaluations, %s pattern-only pixels, %s "
-                    "interpolated; first-level grid made finer %s times, restarts %s\n",
-                    thousands(as.firstLevelRays).c_str(), thousands(as.secondLevelRays).c_str(),
-                    thousands(as.aciEvaluations).c_str(),
-                    thousands(as.patternEvaluations).c_str(),
-                    thousands(as.interpolatedPixels).c_str(), thousands(as.gridIncreases).c_str(),
-                    thousands(as.restarts).c_str());
+        std::printf(
+            "where ACI's rays go: %s first-level (corners of patterns and evaluations), "
+            "%s second-level; %s full evaluations, %s pattern-only pixels, %s "
+            "interpolated; first-level grid made finer %s times, restarts %s\n",
+            thousands(as.firstLevelRays).c_str(), thousands(as.secondLevelRays).c_str(),
+            thousands(as.aciEvaluations).c_str(), thousands(as.patternEvaluations).c_str(),
+            thousands(as.interpolatedPixels).c_str(), thousands(as.gridIncreases).c_str(),
+            thousands(as.restarts).c_str());
         std::printf("tuned ACI: %.2f rays/VR at %.3f; mc-solid-angle at its rays: %.3f (%.2fx)\n",
                     raysPerVr(rows[8]), rows[8].diff, rows[9].diff, rows[9].diff / rows[8].diff);
 
@@ -465,9 +481,11 @@ int main(int argc, char** argv) {
         pickCrop(rows[4].result.color, refImage, mask, cw, cx, cy);
         const int zoom = std::max(1, 360 / cw);
         const float errorScale = 8.0f;
-        const std::vector<std::pair<const Row*, std::string>> shown = {
-            {&rows[0], "reference"}, {&rows[1], "aci"}, {&rows[2], "mc_adaptive"},
-            {&rows[4], "mc_solid_angle"}, {&rows[5], "mc_ratio"}};
+        const std::vector<std::pair<const Row*, std::string>> shown = {{&rows[0], "reference"},
+                                                                       {&rows[1], "aci"},
+                                                                       {&rows[2], "mc_adaptive"},
+                                                                       {&rows[4], "mc_solid_angle"},
+                                                                       {&rows[5], "mc_ratio"}};
         std::vector<std::string> cropFiles, errorFiles;
         for (const auto& [row, tag] : shown) {
             const Image& against = row == &rows[0] ? checkImage : refImage;
@@ -479,10 +497,10 @@ int main(int argc, char** argv) {
             cropFiles.push_back(picture);
             errorFiles.push_back(error);
         }
-        std::printf("\ncrop: %d x %d pixels at (%d, %d), x%d; error maps: black 0, blue %.0f, red "
-                    "%.0f, yellow %.0f, white >= %.0f (8-bit units)\n",
-                    cw, cw, cx, cy, zoom, errorScale / 4, errorScale / 2, 3 * errorScale / 4,
-                    errorScale);
+        std::printf(
+            "\ncrop: %d x %d pixels at (%d, %d), x%d; error maps: black 0, blue %.0f, red "
+            "%.0f, yellow %.0f, white >= %.0f (8-bit units)\n",
+            cw, cw, cx, cy, zoom, errorScale / 4, errorScale / 2, 3 * errorScale / 4, errorScale);
 
         // -------------------------------------------------------------------------------------
         // The budget sweep, at --sweep-size against its own reference.
@@ -495,10 +513,10 @@ int main(int argc, char** argv) {
         const Row sweepCheck = sweepPlain.run("sweep check", sweepCheckSettings);
         const double sweepRefError =
             compareImages(sweepRef.result.color, sweepCheck.result.color, &sweepMask).masked.mean;
-        std::printf("\nsweep at %d x %d against the %d-ray reference; the %d-ray reference differs "
-                    "from it by %.3f (masked), so the 4x one's own error is about half that\n",
-                    args.sweepSize, args.sweepSize, 4 * args.refSamples, args.refSamples,
-                    sweepRefError);
+        std::printf(
+            "\nsweep at %d x %d against the %d-ray reference; the %d-ray reference differs "
+            "from it by %.3f (masked), so the 4x one's own error is about half that\n",
+            args.sweepSize, args.sweepSize, 4 * args.refSamples, args.refSamples, sweepRefError);
         const Bench sweepPlot(scene, args.sweepSize, args.threads, &sweepCheck.result.color,
                               nullptr, &sweepMask);
         struct Series {
@@ -510,7 +528,8 @@ int main(int argc, char** argv) {
             const Row r = sweepPlot.run(label, rs);
             s.points.push_back({raysPerVr(r), r.diff});
             std::printf("sweep  %-16s %-28s rays/VR %8.2f  mean difference %.4f  (%.2f s)\n",
-                        s.title.c_str(), label.c_str(), raysPerVr(r), r.diff, r.result.stats.seconds);
+                        s.title.c_str(), label.c_str(), raysPerVr(r), r.diff,
+                        r.result.stats.seconds);
         };
         {
             Series s{"aci", {}};
@@ -587,7 +606,8 @@ int main(int argc, char** argv) {
               << "plot ";
             for (size_t i = 0; i < series.size(); ++i) {
                 g << (i ? ", " : "") << quoted(data) << " index " << i
-                  << " with linespoints lw 2 pt " << (i + 5) << " title " << quoted(series[i].title);
+                  << " with linespoints lw 2 pt " << (i + 5) << " title "
+                  << quoted(series[i].title);
             }
             g << ", " << sweepRefError << " with lines dt 2 lc 'gray' title sprintf('%d-ray "
               << "reference vs %d-ray: %.3f', " << args.refSamples << ", " << 4 * args.refSamples
@@ -608,8 +628,8 @@ int main(int argc, char** argv) {
                   << " binary filetype=png flipy with rgbimage\n";
             }
             for (int i = 0; i < 5; ++i) {
-                g << "set title " << quoted(std::string(titles[i]) + " error" +
-                                            (i == 0 ? " (vs 4x rays)" : ""))
+                g << "set title "
+                  << quoted(std::string(titles[i]) + " error" + (i == 0 ? " (vs 4x rays)" : ""))
                   << "\n"
                   << "plot " << quoted(errorFiles[size_t(i)])
                   << " binary filetype=png flipy with rgbimage\n";

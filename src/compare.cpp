@@ -17,9 +17,9 @@ std::string sizeOf(const Image& i) {
 
 void requireSameShape(const Image& test, const Image& ref) {
     if (test.width != ref.width || test.height != ref.height || test.channels != ref.channels) {
-        throw InputError("", "REF",
-                         "the images differ in size or channels: " + sizeOf(test) + " vs " +
-                             sizeOf(ref));
+        throw InputError(
+            "", "REF",
+            "the images differ in size or channels: " + sizeOf(test) + " vs " + sizeOf(ref));
     }
 }
 
@@ -62,7 +62,8 @@ ImageDifference compareImages(const Image& test, const Image& ref, const Image* 
             ++all.pixels;
             if (counted) ++inMask.pixels;
             for (int c = 0; c < test.channels; ++c) {
-                const double d = 255.0 * std::abs(double(test.at(x, y, c)) - double(ref.at(x, y, c)));
+                const double d =
+                    255.0 * std::abs(double(test.at(x, y, c)) - double(ref.at(x, y, c)));
                 all.add(d);
                 if (counted) inMask.add(d);
             }

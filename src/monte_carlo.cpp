@@ -26,14 +26,14 @@ constexpr uint64_t kGolden = 0x9e3779b97f4a7c15ull;
 
 // Uniform doubles in [0, 1) from one seed: the splitmix64 sequence.
 class Stream {
-public:
+  public:
     explicit Stream(uint64_t seed) : mState(mix64(seed ^ 0x5851f42d4c957f2dull)) {}
     double next() {
         mState += kGolden;
         return double(mix64(mState) >> 11) * 0x1p-53;
     }
 
-private:
+  private:
     uint64_t mState;
 };
 
@@ -171,8 +171,11 @@ namespace {
 // What every estimator needs about one receiver point and one light.
 struct Setup {
     Setup(const Receiver& r, const RectLight& light, const McSettings& s)
-        : m(r.point), n(r.normal), origin(r.point + s.rayOffset * r.normal),
-          lightNormal(light.normal()), area(light.area()) {}
+        : m(r.point),
+          n(r.normal),
+          origin(r.point + s.rayOffset * r.normal),
+          lightNormal(light.normal()),
+          area(light.area()) {}
     Vec3 m, n, origin, lightNormal;
     double area;
 };
@@ -327,12 +330,13 @@ Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder:
         }
         const double h = 0.5 * cell.size;
         for (int q = 0; q < 4; ++q) {
-            Cell child{cell.u0 + h * (q & 1), cell.v0 + h * (q >> 1), h, cell.depth + 1,
-                       {}, {}, {}, {}};
+            Cell child{
+                cell.u0 + h * (q & 1), cell.v0 + h * (q >> 1), h, cell.depth + 1, {}, {}, {}, {}};
             // The parent's sample of this quadrant lies in one of the child's quadrants and is
             // kept; the three others are drawn.
             const Vec2 a = cell.at[q];
-            const int keep = (a.x >= child.u0 + 0.5 * h ? 1 : 0) | (a.y >= child.v0 + 0.5 * h ? 2 : 0);
+            const int keep =
+                (a.x >= child.u0 + 0.5 * h ? 1 : 0) | (a.y >= child.v0 + 0.5 * h ? 2 : 0);
             for (int c = 0; c < 4; ++c) {
                 if (c == keep) {
                     child.at[c] = a;

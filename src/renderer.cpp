@@ -606,7 +606,8 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     checkRange("--samples", settingsIn.mc.samples, 0, 1 << 20);
     if (!(settingsIn.mc.threshold > 0.0) || !std::isfinite(settingsIn.mc.threshold)) {
         throw InputError("", "--mc-threshold",
-                         "must be a finite number > 0, got " + std::to_string(settingsIn.mc.threshold));
+                         "must be a finite number > 0, got " +
+                             std::to_string(settingsIn.mc.threshold));
     }
     checkRange("--mc-max-depth", settingsIn.mc.maxDepth, 0, 24);
     checkRange("--mc-initial-depth", settingsIn.mc.initialDepth, 0, 8);

@@ -10,9 +10,11 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -643,10 +645,19 @@ std::string existingFile(const Node& fileNode) {
         p = std::filesystem::path(fileNode.context().baseDir) / p;
     }
     const std::string path = p.lexically_normal().string();
+    const std::string resolved = path != file ? " (resolved to " + inQuotes(path) + ")" : "";
     std::error_code ec;
+    if (std::filesystem::is_directory(path, ec)) {
+        fileNode.fail(inQuotes(file) + resolved + " is a directory, not a file");
+    }
     if (!std::filesystem::is_regular_file(path, ec)) {
-        fileNode.fail("no such file " + inQuotes(file) +
-                      (path != file ? " (resolved to " + inQuotes(path) + ")" : ""));
+        fileNode.fail("no such file " + inQuotes(file) + resolved);
+    }
+    // Checked here so that a permission problem is reported as such (and at this pointer),
+    // not as a parse error of an empty file by the reader.
+    if (!std::ifstream(path, std::ios::binary)) {
+        fileNode.fail("cannot open " + inQuotes(file) + resolved + " for reading: " +
+                      std::strerror(errno));
     }
     return path;
 }

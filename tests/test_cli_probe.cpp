@@ -140,7 +140,8 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
     const fs::path dir = makeTempDir("mc");
     std::ofstream(dir / "scene.json") << kScene;
     const std::string scene = (dir / "scene.json").string();
-    const std::string input = "x,y,z,nx,ny,nz\n1.2,0.43,0,0,0,1\n0.6,0.4,0,0,0,1\n-2.0,0.3,0,0,0,1\n";
+    const std::string input =
+        "x,y,z,nx,ny,nz\n1.2,0.43,0,0,0,1\n0.6,0.4,0,0,0,1\n-2.0,0.3,0,0,0,1\n";
     RectLight light;
     light.corner = Vec3(-1, -1, 4);
     light.edgeU = Vec3(0, 2, 0);
@@ -148,10 +149,10 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
     const std::vector<Vec3> points = {Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0), Vec3(-2.0, 0.3, 0)};
     for (const char* method : {"reference", "mc-adaptive", "mc-solid-angle", "mc-ratio"}) {
         INFO(method);
-        const Run run = runPenumbra("probe " + scene + " --method " + method +
-                                        (std::string(method) == "mc-adaptive" ? "" : " --samples 256") +
-                                        " --seed 3",
-                                    input, dir);
+        const std::string samples =
+            std::string(method) == "mc-adaptive" ? "" : " --samples 256";
+        const Run run = runPenumbra(
+            "probe " + scene + " --method " + method + samples + " --seed 3", input, dir);
         INFO(readFile(dir / "stderr.txt"));
         REQUIRE(run.exitCode == 0);
         std::istringstream lines(run.out);
@@ -169,9 +170,9 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
             CHECK(v[5] == 0.0);
             CHECK(v[6] == 0.0);
             const Receiver r{points[i], Vec3(0, 0, 1)};
-            const double exactF = exact::sphereShadowFormFactor(points[i], Vec3(0, 0, 1),
-                                                                light.corner, light.edgeU,
-                                                                light.edgeV, Vec3(0.3, 0.2, 2.0), 0.7);
+            const double exactF =
+                exact::sphereShadowFormFactor(points[i], Vec3(0, 0, 1), light.corner, light.edgeU,
+                                              light.edgeV, Vec3(0.3, 0.2, 2.0), 0.7);
             if (std::string(method) == "mc-adaptive") {
                 const double f0 = unoccludedFormFactor(light, r);
                 // 4 rays when they agree, more where an edge crosses; biased (see [mc]), so only

@@ -1,17 +1,15 @@
 // Tests of compare.h and of `penumbra compare`: zero for identical images, the right figures for
 // a known offset and a known single-pixel error, the mask, the error map, and refused input.
-#include <catch2/catch.hpp>
-
 #include <sys/wait.h>
 
+#include <catch2/catch.hpp>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
-
-#include <nlohmann/json.hpp>
 
 #include "penumbra/compare.h"
 #include "penumbra/error.h"
@@ -134,11 +132,10 @@ TEST_CASE("penumbra compare prints the figures, writes the error map, refuses ba
     writeImage((dir / "ref.exr").string(), ref);
     writeImage((dir / "mask.exr").string(), mask);
 
-    const std::string files =
-        (dir / "test.exr").string() + " " + (dir / "ref.exr").string() + " --mask " +
-        (dir / "mask.exr").string();
-    Run run = runPenumbra("compare " + files + " --json --error-map " +
-                              (dir / "map.png").string() + " --error-scale 8",
+    const std::string files = (dir / "test.exr").string() + " " + (dir / "ref.exr").string() +
+                              " --mask " + (dir / "mask.exr").string();
+    Run run = runPenumbra("compare " + files + " --json --error-map " + (dir / "map.png").string() +
+                              " --error-scale 8",
                           dir);
     INFO(run.err);
     REQUIRE(run.exitCode == 0);
@@ -170,15 +167,13 @@ TEST_CASE("penumbra compare prints the figures, writes the error map, refuses ba
 
     // Bad input: one line, exit code 2.
     writeImage((dir / "other.exr").string(), ramp(8, 8));
-    run = runPenumbra("compare " + (dir / "test.exr").string() + " " +
-                          (dir / "other.exr").string(),
+    run = runPenumbra("compare " + (dir / "test.exr").string() + " " + (dir / "other.exr").string(),
                       dir);
     CHECK(run.exitCode == 2);
     CHECK(run.err.find("differ in size") != std::string::npos);
     CHECK(std::count(run.err.begin(), run.err.end(), '\n') == 1);
-    run = runPenumbra("compare " + (dir / "test.exr").string() + " " +
-                          (dir / "missing.exr").string(),
-                      dir);
+    run = runPenumbra(
+        "compare " + (dir / "test.exr").string() + " " + (dir / "missing.exr").string(), dir);
     CHECK(run.exitCode == 2);
     CHECK(run.err.find("missing.exr") != std::string::npos);
     run = runPenumbra("compare " + files + " --error-map " + (dir / "map.txt").string(), dir);

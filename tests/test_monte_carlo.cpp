@@ -3,7 +3,6 @@
 // the closed form and to the exact sphere shadow within statistical bounds at fixed seeds, ray
 // counts, and the Monte Carlo methods in the renderer (same pixels as ACI, thread independence).
 #include <catch2/catch.hpp>
-
 #include <cmath>
 #include <functional>
 #include <random>
@@ -37,8 +36,8 @@ const double kSphereRadius = 0.7;
 double triangleSolidAngle(const Vec3& a, const Vec3& b, const Vec3& c) {
     const double la = glm::length(a), lb = glm::length(b), lc = glm::length(c);
     const double num = std::abs(glm::dot(a, glm::cross(b, c)));
-    const double den = la * lb * lc + glm::dot(a, b) * lc + glm::dot(a, c) * lb +
-                       glm::dot(b, c) * la;
+    const double den =
+        la * lb * lc + glm::dot(a, b) * lc + glm::dot(a, c) * lb + glm::dot(b, c) * la;
     return 2.0 * std::atan2(num, den);
 }
 
@@ -64,8 +63,8 @@ double integrandMax(const RectLight& light, const Vec3& p) {
     return 1.01 * fMax;
 }
 
-using Estimator = std::function<Estimate(const Receiver&, const RectLight&, Occluder::Query&,
-                                         const McSettings&)>;
+using Estimator =
+    std::function<Estimate(const Receiver&, const RectLight&, Occluder::Query&, const McSettings&)>;
 
 struct Named {
     const char* name;
@@ -104,8 +103,7 @@ Trials runTrials(const Estimator& f, const Receiver& r, const RectLight& light,
 
 }  // namespace
 
-TEST_CASE("the spherical rectangle's samples stay inside the light and reach its corners",
-          "[mc]") {
+TEST_CASE("the spherical rectangle's samples stay inside the light and reach its corners", "[mc]") {
     const RectLight light = testLight();
     std::mt19937_64 gen(7);
     std::uniform_real_distribution<double> uni(0.0, 1.0);
@@ -151,8 +149,8 @@ TEST_CASE("the spherical rectangle is uniform in solid angle", "[mc]") {
                 const Vec3 a = rect.sample(u, v) - m, b = rect.sample(u + h, v) - m;
                 const Vec3 c = rect.sample(u + h, v + h) - m, d = rect.sample(u, v + h) - m;
                 const double omega = triangleSolidAngle(a, b, c) + triangleSolidAngle(a, c, d);
-                worstJacobian = std::max(worstJacobian,
-                                         std::abs(omega / (h * h) / rect.solidAngle() - 1.0));
+                worstJacobian =
+                    std::max(worstJacobian, std::abs(omega / (h * h) / rect.solidAngle() - 1.0));
             }
         }
         CHECK(worstJacobian < 1e-3);
@@ -175,8 +173,8 @@ TEST_CASE("the spherical rectangle is uniform in solid angle", "[mc]") {
         double chi2 = 0.0, spread = 0.0;
         for (int b = 0; b < 4; ++b) {
             for (int a = 0; a < 4; ++a) {
-                const double omega = subSolidAngle(light, m, a / 4.0, (a + 1) / 4.0, b / 4.0,
-                                                   (b + 1) / 4.0);
+                const double omega =
+                    subSolidAngle(light, m, a / 4.0, (a + 1) / 4.0, b / 4.0, (b + 1) / 4.0);
                 const double expected = n * omega / exactOmega;
                 const double o = counts[size_t(b * 4 + a)];
                 chi2 += (o - expected) * (o - expected) / expected;
@@ -298,8 +296,8 @@ TEST_CASE("every Monte Carlo method converges to the exact sphere shadow", "[mc]
             const double perSampleMax =
                 name == "mc-solid-angle" ? solidAngle / kPi : integrandMax(light, p);
             const double bernoulliSd = perSampleMax / (2.0 * std::sqrt(double(s.samples)));
-            INFO(name << " at " << p.x << "," << p.y << ": mean " << t.mean << ", exact "
-                      << exactF << ", sd of one estimate " << t.sd << " (independent-sample "
+            INFO(name << " at " << p.x << "," << p.y << ": mean " << t.mean << ", exact " << exactF
+                      << ", sd of one estimate " << t.sd << " (independent-sample "
                       << "bound " << bernoulliSd << "), rays " << t.rays / double(k));
             CHECK(std::abs(t.mean - exactF) <= 5.0 * t.sd / std::sqrt(double(k)) + biasAllowance);
             if (name == "mc-adaptive") CHECK(t.rays > uint64_t(k) * 1024);  // it did split
@@ -341,10 +339,10 @@ TEST_CASE("Monte Carlo ray counts: N above the horizon, none below, 4 for a unif
     McSettings s;
     s.samples = 32;
     s.seed = 5;
-    const Receiver lit{Vec3(3.0, 3.0, 0.0), kUp};      // sees the whole light past the sphere
-    const Receiver umbra{Vec3(0.6, 0.4, 0.0), kUp};    // the light's centre behind the sphere's
-    const Receiver below{Vec3(0.0, 0.0, 0.0), -kUp};   // the light is behind its horizon
-    const Receiver behind{Vec3(0.0, 0.0, 5.0), kUp};   // above the light: its back side
+    const Receiver lit{Vec3(3.0, 3.0, 0.0), kUp};     // sees the whole light past the sphere
+    const Receiver umbra{Vec3(0.6, 0.4, 0.0), kUp};   // the light's centre behind the sphere's
+    const Receiver below{Vec3(0.0, 0.0, 0.0), -kUp};  // the light is behind its horizon
+    const Receiver behind{Vec3(0.0, 0.0, 5.0), kUp};  // above the light: its back side
     for (const Named& method : estimators()) {
         INFO(method.name);
         const bool adaptive = std::string(method.name) == "mc-adaptive";
@@ -438,8 +436,8 @@ TEST_CASE("Monte Carlo methods render the same pixels with rays as ACI, on any t
     aci.threads = 1;
     const RenderResult base = render(scene, aci);
     REQUIRE(base.stats.viewingRaysWithShadowRays > 100);
-    for (Method m : {Method::Reference, Method::McAdaptive, Method::McSolidAngle,
-                     Method::McRatio}) {
+    for (Method m :
+         {Method::Reference, Method::McAdaptive, Method::McSolidAngle, Method::McRatio}) {
         INFO(methodName(m));
         CHECK(isMonteCarlo(m));
         CHECK(parseMethod(methodName(m)) == m);
@@ -463,8 +461,7 @@ TEST_CASE("Monte Carlo methods render the same pixels with rays as ACI, on any t
         CHECK(onlyAci <= base.stats.viewingRaysWithShadowRays / 100);
         const int expected = m == Method::Reference ? 64 : defaultSamples(m);
         if (m != Method::McAdaptive) {
-            CHECK(one.stats.shadowRays <=
-                  uint64_t(expected) * one.stats.viewingRaysWithShadowRays);
+            CHECK(one.stats.shadowRays <= uint64_t(expected) * one.stats.viewingRaysWithShadowRays);
             CHECK(one.stats.shadowRays >=
                   uint64_t(0.8 * expected * one.stats.viewingRaysWithShadowRays));
         }

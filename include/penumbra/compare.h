@@ -15,10 +15,10 @@
 namespace penumbra {
 
 struct DifferenceStats {
-    size_t pixels = 0;   ///< pixels counted (each contributes all its channels)
-    double mean = 0.0;   ///< mean over pixels and channels of 255 |test - ref|
-    double rmse = 0.0;   ///< sqrt of the mean of (255 (test - ref))^2
-    double max = 0.0;    ///< largest 255 |test - ref|
+    size_t pixels = 0;  ///< pixels counted (each contributes all its channels)
+    double mean = 0.0;  ///< mean over pixels and channels of 255 |test - ref|
+    double rmse = 0.0;  ///< sqrt of the mean of (255 (test - ref))^2
+    double max = 0.0;   ///< largest 255 |test - ref|
 };
 
 struct ImageDifference {

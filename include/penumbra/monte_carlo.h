@@ -8,9 +8,11 @@
 ///   by cos(theta_M) cos(theta_L) A / (pi r^2): the paper's "ray traced form factors", its
 ///   reference with N = 1024.
 /// - monteCarloAdaptive: adaptive subdivision of the source after Kok and Jansen (1992), without
-///   shadow-pattern coherence: a quadtree over the light whose cells carry one jittered sample
-///   per quadrant; a cell whose shadow rays disagree is split while the standard error of its
-///   contribution exceeds `threshold` x the unoccluded form factor.
+///   shadow-pattern coherence: a quadtree over the light (from a 2^d x 2^d grid of cells, d =
+///   initialDepth) whose cells carry one jittered sample per quadrant; a cell whose shadow rays
+///   disagree is split while the standard error of its contribution exceeds `threshold` x the
+///   unoccluded form factor. Biased, like all adaptive sampling (Kirk and Arvo 1991): a cell
+///   whose four rays agree is never split, whatever crosses it.
 /// - monteCarloSolidAngle: uniform sampling of the solid angle the light subtends, by the
 ///   area-preserving parametrization of the spherical rectangle (Urena, Fajardo and King 2013),
 ///   driven by Owen-scrambled Sobol points; F = S / (pi N) sum cos(theta_i) V_i.
@@ -28,7 +30,7 @@
 /// the light: images do not depend on the thread count).
 ///
 /// Counts: `counts.shadowRays()` is the number of rays cast. Fixed-count methods report them as
-/// first-level rays; mc-adaptive reports its root cell's rays as first-level and the rays of
+/// first-level rays; mc-adaptive reports its initial cells' rays as first-level and the rays of
 /// split cells as second-level. Gradients are not estimated: `gradient` and `dg` are zero and
 /// `g` is F n (so that g . n = F for code that projects G on the normal).
 ///
@@ -86,7 +88,7 @@ Vec2 sobolOwen2(uint32_t index, uint64_t seed);
 /// The light must be a rectangle (edgeU perpendicular to edgeV, as every RectLight in a scene
 /// is; a parallelogram is not a spherical rectangle).
 class SphericalRectangle {
-public:
+  public:
     SphericalRectangle(const RectLight& light, const Vec3& origin);
 
     /// Solid angle subtended, in steradians; 0 when the origin lies in the light's plane.
@@ -95,7 +97,7 @@ public:
     /// edgeU, v along edgeV; u = 0 and u = 1 are the light's sides edgeV and edgeV + edgeU.
     Vec3 sample(double u, double v) const;
 
-private:
+  private:
     Vec3 mOrigin, mX, mY, mZ;  // local frame: x along edgeU, y along edgeV, z away from the light
     double mX0 = 0, mX1 = 0, mY0 = 0, mY1 = 0, mZ0 = 0;  // the light is [x0,x1] x [y0,y1] at z0
     double mB0 = 0, mB1 = 0, mK = 0;                     // constants of the inversion

@@ -6,9 +6,8 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "cli/commands.h"
 #include "penumbra/compare.h"

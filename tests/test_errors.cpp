@@ -1,0 +1,408 @@
+// The error catalogue of docs/errors.md, one TEST_CASE per row: the real `penumbra` binary is run
+// on a bad input, and each case checks the exit code (2 bad input, 1 runtime failure), that
+// stderr is one line naming the file and the JSON pointer or flag, and that an output file that
+// existed before the run is left untouched (no half-written image, no stray temporary file).
+#include <catch2/catch.hpp>
+
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/LevelSetUtil.h>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const char* kPrevious = "previous contents: must survive a failed run\n";
+
+// Lights and a receiver, to be completed into a scene with a camera (8 x 8 keeps runs fast).
+const std::string kBody =
+    R"("lights": [{"corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0]}],
+  "receivers": [{"type": "plane", "point": [0,0,0], "normal": [0,0,1]}])";
+const std::string kCamera = R"("camera": {"width": 8, "height": 8})";
+
+std::string sceneWith(const std::string& extra) {
+    return "{\n  " + kCamera + ",\n  " + kBody + (extra.empty() ? "" : ",\n  " + extra) + "\n}\n";
+}
+
+std::string readFile(const fs::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    std::stringstream ss;
+    ss << f.rdbuf();
+    return ss.str();
+}
+
+std::vector<std::string> lines(const std::string& text) {
+    std::vector<std::string> out;
+    std::istringstream in(text);
+    std::string line;
+    while (std::getline(in, line)) out.push_back(line);
+    return out;
+}
+
+std::set<std::string> listing(const fs::path& dir) {
+    std::set<std::string> names;
+    for (const auto& e : fs::directory_iterator(dir)) names.insert(e.path().filename().string());
+    return names;
+}
+
+// One catalogue case: a scratch directory holding the scene and a pre-existing output file.
+class Case {
+public:
+    explicit Case(const std::string& name)
+        : mDir(fs::temp_directory_path() /
+               ("penumbra_errors_" + name + "_" + std::to_string(::getpid()))) {
+        fs::remove_all(mDir);
+        fs::create_directories(mDir);
+    }
+    ~Case() {
+        std::error_code ec;
+        fs::permissions(mDir, fs::perms::owner_all, fs::perm_options::add, ec);
+        fs::remove_all(mDir, ec);
+    }
+    fs::path path(const std::string& name) const { return mDir / name; }
+    void write(const std::string& name, const std::string& text) const {
+        std::ofstream(path(name), std::ios::binary) << text;
+    }
+    // Runs `penumbra ARGS` in the case's directory; `env` is prepended to the command.
+    void run(const std::string& args, const std::string& env = "") {
+        const std::string cmd = "cd '" + mDir.string() + "' && " + env + " " +
+                                std::string(PENUMBRA_BINARY) + " " + args + " > stdout.txt" +
+                                " 2> stderr.txt";
+        mBefore = listing(mDir);
+        const int status = std::system(cmd.c_str());
+        exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+        err = lines(readFile(path("stderr.txt")));
+    }
+    // The one stderr line; fails the test if there is not exactly one.
+    std::string errorLine() const {
+        INFO(readFile(path("stderr.txt")));
+        REQUIRE(err.size() == 1);
+        return err[0];
+    }
+    // The run created no file (a temporary left behind, a partial output) other than the
+    // redirections.
+    std::set<std::string> newFiles() const {
+        std::set<std::string> added;
+        for (const auto& n : listing(mDir)) {
+            if (!mBefore.count(n) && n != "stdout.txt" && n != "stderr.txt") added.insert(n);
+        }
+        return added;
+    }
+
+    int exitCode = -1;
+    std::vector<std::string> err;
+
+private:
+    fs::path mDir;
+    std::set<std::string> mBefore;
+};
+
+// Renders `scene.json` (written from `sceneText`) to a pre-existing out.exr with extra `flags`,
+// and checks the common contract of a refused input: exit code, one line starting with the
+// program's prefix and containing every one of `needles`, out.exr unchanged, no new file.
+void expectRefused(Case& c, const std::string& sceneText, const std::string& flags, int code,
+                   const std::vector<std::string>& needles, const std::string& env = "") {
+    c.write("scene.json", sceneText);
+    c.write("out.exr", kPrevious);
+    c.run("render scene.json -o out.exr -q " + flags, env);
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == code);
+    const std::string line = c.errorLine();
+    CHECK_THAT(line, Catch::StartsWith("penumbra: error: "));
+    for (const auto& n : needles) CHECK_THAT(line, Catch::Contains(n));
+    CHECK(readFile(c.path("out.exr")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
+void writeGrid(const fs::path& file, openvdb::GridBase::Ptr grid) {
+    openvdb::io::File vdb(file.string());
+    vdb.write({grid});
+    vdb.close();
+}
+
+openvdb::FloatGrid::Ptr smallSphere() {
+    openvdb::initialize();
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        0.5f, openvdb::Vec3f(0.0f, 0.0f, 1.0f), 0.05f, 3.0f);
+    grid->setName("ball");
+    return grid;
+}
+
+}  // namespace
+
+TEST_CASE("E01 malformed JSON: line and column", "[errors]") {
+    Case c("e01");
+    expectRefused(c, "{\n  \"camera\": {},\n  \"lights\": [ {\"corner\": [1,2,}\n]}\n", "", 2,
+                  {"scene.json: malformed JSON at line 3, column 31"});
+}
+
+TEST_CASE("E02 missing required field", "[errors]") {
+    Case c("e02");
+    expectRefused(c,
+                  "{" + kCamera + R"(, "lights": [{"corner": [-1,-1,4], "edge_u": [0,2,0]}]})", "",
+                  2, {"scene.json: /lights/0/edge_v: missing required field 'edge_v'"});
+}
+
+TEST_CASE("E03 ill-typed field", "[errors]") {
+    Case c("e03");
+    expectRefused(c, "{\"camera\": {\"width\": \"8\"}, " + kBody + "}", "", 2,
+                  {"scene.json: /camera/width: expected a number, got string"});
+}
+
+TEST_CASE("E04 unknown key names the nearest valid key", "[errors]") {
+    Case c("e04");
+    expectRefused(c, "{\"camera\": {\"widht\": 8}, " + kBody + "}", "", 2,
+                  {"scene.json: /camera/widht: unknown key 'widht' (did you mean 'width'?)"});
+}
+
+TEST_CASE("E05 NaN literal", "[errors]") {
+    Case c("e05");
+    // JSON has no NaN: the parser stops at it, with its position.
+    expectRefused(
+        c, sceneWith(R"("obstacles": [{"type": "sphere", "center": [0,0,1], "radius": NaN}])"),
+        "", 2, {"scene.json: malformed JSON at line 5, column", "invalid literal"});
+}
+
+TEST_CASE("E06 infinite number", "[errors]") {
+    Case c("e06");
+    expectRefused(
+        c, sceneWith(R"("obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 1e400}])"),
+        "", 2, {"scene.json: /obstacles/0/radius: number overflow parsing '1e400'"});
+}
+
+TEST_CASE("E07 missing .vdb file", "[errors]") {
+    Case c("e07");
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "nope.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0/file: no such file 'nope.vdb'"});
+}
+
+TEST_CASE("E08 missing .obj file", "[errors]") {
+    Case c("e08");
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "mesh", "file": "nope.obj"}])"), "", 2,
+                  {"scene.json: /obstacles/0/file: no such file 'nope.obj'"});
+}
+
+TEST_CASE("E09 unreadable .vdb file", "[errors]") {
+    Case c("e09");
+    SECTION("a directory") {
+        fs::create_directories(c.path("dir.vdb"));
+        expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "dir.vdb"}])"), "",
+                      2, {"scene.json: /obstacles/0/file: 'dir.vdb' is a directory"});
+    }
+    SECTION("no read permission") {
+        writeGrid(c.path("locked.vdb"), smallSphere());
+        ::chmod(c.path("locked.vdb").c_str(), 0);
+        if (::geteuid() == 0) {
+            // root reads any file: the permission check cannot be exercised, the run succeeds.
+            WARN("running as root: the unreadable-file case is not exercised");
+        } else {
+            expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "locked.vdb"}])"),
+                          "", 2,
+                          {"scene.json: /obstacles/0/file: cannot open 'locked.vdb' for reading"});
+        }
+    }
+}
+
+TEST_CASE("E10 truncated .vdb file", "[errors]") {
+    Case c("e10");
+    writeGrid(c.path("full.vdb"), smallSphere());
+    const std::string full = readFile(c.path("full.vdb"));
+    REQUIRE(full.size() > 400);
+    c.write("cut.vdb", full.substr(0, full.size() / 2));
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "cut.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0", "cut.vdb"});
+}
+
+TEST_CASE("E11 corrupt .vdb file", "[errors]") {
+    Case c("e11");
+    c.write("junk.vdb", "this is not a VDB file\n");
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "junk.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0: junk.vdb: cannot read VDB file", "not a VDB file"});
+}
+
+TEST_CASE("E12 truncated .obj file", "[errors]") {
+    Case c("e12");
+    c.write("cut.obj", "v 0 0 0\nv 1 0 0\nv 0 1");
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "mesh", "file": "cut.obj"}])"), "", 2,
+                  {"scene.json: /obstacles/0/file: cut.obj: line 3: a vertex needs 3 coordinates"});
+}
+
+TEST_CASE("E13 corrupt .obj file", "[errors]") {
+    Case c("e13");
+    c.write("bad.obj", "v 0 0 0\nv 1 0 0\nf 1 2 7\n");
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "mesh", "file": "bad.obj"}])"), "", 2,
+                  {"scene.json: /obstacles/0/file: bad.obj: line 3: vertex index 7 is out of "
+                   "range (2 vertices read so far)"});
+}
+
+TEST_CASE("E14 grid that is not a level set", "[errors]") {
+    Case c("e14");
+    openvdb::FloatGrid::Ptr fog = smallSphere();
+    openvdb::tools::sdfToFogVolume(*fog);
+    REQUIRE(fog->getGridClass() == openvdb::GRID_FOG_VOLUME);
+    writeGrid(c.path("fog.vdb"), fog);
+    expectRefused(
+        c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "fog.vdb", "grid": "ball"}])"), "",
+        2, {"scene.json: /obstacles/0", "fog.vdb", "not a level set"});
+}
+
+TEST_CASE("E15 non-uniform voxels", "[errors]") {
+    Case c("e15");
+    openvdb::FloatGrid::Ptr grid = smallSphere();
+    openvdb::Mat4d m = openvdb::Mat4d::identity();
+    m.preScale(openvdb::Vec3d(0.05, 0.1, 0.05));
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(m));
+    REQUIRE_FALSE(grid->hasUniformVoxels());
+    writeGrid(c.path("stretched.vdb"), grid);
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "stretched.vdb"}])"), "",
+                  2, {"scene.json: /obstacles/0", "stretched.vdb", "non-uniform voxels"});
+}
+
+TEST_CASE("E16 degenerate light: zero area", "[errors]") {
+    Case c("e16");
+    expectRefused(c,
+                  "{" + kCamera +
+                      R"(, "lights": [{"corner": [-1,-1,4], "edge_u": [0,0,0], "edge_v": [2,0,0]}]})",
+                  "", 2, {"scene.json: /lights/0: degenerate rectangle"});
+}
+
+TEST_CASE("E17 degenerate light: parallel edges", "[errors]") {
+    Case c("e17");
+    expectRefused(c,
+                  "{" + kCamera +
+                      R"(, "lights": [{"corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [0,4,0]}]})",
+                  "", 2, {"scene.json: /lights/0: degenerate rectangle", "parallel or zero"});
+}
+
+TEST_CASE("E18 camera inside an obstacle: rendered, not a crash", "[errors]") {
+    Case c("e18");
+    c.write("scene.json",
+            R"({"camera": {"eye": [0, 0.1, 1], "look_at": [0, 0, 0], "width": 8, "height": 8},
+               )" + kBody +
+                R"(, "obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.5}]})");
+    c.run("render scene.json -o out.exr -q");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 0);
+    CHECK(fs::file_size(c.path("out.exr")) > 0);
+}
+
+TEST_CASE("E18b camera inside an obstacle: a one-line warning", "[errors][!mayfail]") {
+    // Wanted by the catalogue, not yet implemented (see docs/errors.md, "open").
+    Case c("e18b");
+    c.write("scene.json",
+            R"({"camera": {"eye": [0, 0.1, 1], "look_at": [0, 0, 0], "width": 8, "height": 8},
+               )" + kBody +
+                R"(, "obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.5}]})");
+    c.run("render scene.json -o out.exr -q");
+    REQUIRE(c.exitCode == 0);
+    REQUIRE(c.err.size() == 1);
+    CHECK_THAT(c.err[0], Catch::Contains("warning") && Catch::Contains("/camera/eye"));
+}
+
+TEST_CASE("E19 zero resolution in the scene", "[errors]") {
+    Case c("e19");
+    expectRefused(c, "{\"camera\": {\"width\": 0}, " + kBody + "}", "", 2,
+                  {"scene.json: /camera/width: must be in [1, 32768], got 0"});
+}
+
+TEST_CASE("E20 zero resolution on the command line", "[errors]") {
+    Case c("e20");
+    expectRefused(c, sceneWith(""), "--height 0", 2, {"--height: must be in [1, 65536], got 0"});
+}
+
+TEST_CASE("E21 absurd resolution: refused with the memory estimate", "[errors][!mayfail]") {
+    // Today the allocation fails (std::bad_alloc, exit 1) after the scene is loaded; wanted: a
+    // refusal naming the flag and the memory it would take (docs/errors.md, "open"). The timeout
+    // guards against a machine large enough to start the render.
+    Case c("e21");
+    expectRefused(c, sceneWith(""), "--width 40000 --height 40000", 2,
+                  {"--width", "GiB"}, "ASAN_OPTIONS=allocator_may_return_null=1 timeout 60");
+}
+
+TEST_CASE("E22 unwritable output path", "[errors]") {
+    Case c("e22");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o missing_dir/out.exr -q");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 1);
+    CHECK_THAT(c.errorLine(), Catch::StartsWith("penumbra: error: ") &&
+                                  Catch::Contains("cannot write 'missing_dir/out.exr'"));
+    CHECK_FALSE(fs::exists(c.path("missing_dir")));
+    CHECK(c.newFiles().empty());
+}
+
+TEST_CASE("E23 unknown output extension", "[errors]") {
+    Case c("e23");
+    c.write("scene.json", sceneWith(""));
+    c.write("out.tiff", kPrevious);
+    c.run("render scene.json -o out.tiff -q");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("-o: ") && Catch::Contains("out.tiff") &&
+                                  Catch::Contains("unknown image extension '.tiff'"));
+    CHECK(readFile(c.path("out.tiff")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
+TEST_CASE("E24 command-line value out of range", "[errors]") {
+    Case c("e24");
+    SECTION("--threads") {
+        expectRefused(c, sceneWith(""), "--threads -5", 2,
+                      {"--threads: must be in [1, 1024], got -5"});
+    }
+    SECTION("--samples") {
+        expectRefused(c, sceneWith(""), "--method reference --samples 0", 2,
+                      {"--samples: must be in [1, 1048576], got 0"});
+    }
+    SECTION("--method") {
+        expectRefused(c, sceneWith(""), "--method foo", 2, {"--method: unknown method 'foo'"});
+    }
+}
+
+TEST_CASE("E25 malformed command line: exit code 2, output untouched", "[errors]") {
+    Case c("e25");
+    c.write("scene.json", sceneWith(""));
+    c.write("out.exr", kPrevious);
+    c.run("render scene.json -o out.exr --threads abc");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 2);
+    REQUIRE_FALSE(c.err.empty());
+    CHECK_THAT(c.err[0], Catch::Contains("--threads"));
+    CHECK(readFile(c.path("out.exr")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
+TEST_CASE("E25b malformed command line: one line with the program's prefix",
+          "[errors][!mayfail]") {
+    // CLI11's own message is two lines without the prefix (docs/errors.md, "open").
+    Case c("e25b");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o out.exr --no-such-flag");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::StartsWith("penumbra: error: ") &&
+                                  Catch::Contains("--no-such-flag"));
+}
+
+TEST_CASE("E26 bake: a bad scene leaves the previous .vdb", "[errors]") {
+    Case c("e26");
+    c.write("scene.json", "{\"lights\": []}");
+    c.write("out.vdb", kPrevious);
+    c.run("bake scene.json -o out.vdb");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("scene.json: /lights"));
+    CHECK(readFile(c.path("out.vdb")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
