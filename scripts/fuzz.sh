@@ -9,7 +9,8 @@ seconds="${1:-60}"
 "$root/scripts/install-deps.sh"
 CXX=clang++ cmake -S "$root" -B "$root/build-fuzz" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DPENUMBRA_BUILD_FUZZ=ON -DPENUMBRA_BUILD_TESTS=OFF -DPENUMBRA_BUILD_BENCH=OFF \
-    -DPENUMBRA_SANITIZE=address,undefined >/dev/null
+    -DPENUMBRA_SANITIZE=address,undefined \
+    -DCMAKE_CXX_FLAGS="-fsanitize-ignorelist=$root/.ci/ubsan_ignorelist.txt" >/dev/null
 cmake --build "$root/build-fuzz" -j"$(nproc 2>/dev/null || echo 2)" --target fuzz_scene_loader
 corpus="$root/build-fuzz/corpus"
 mkdir -p "$corpus" "$root/build-fuzz/crashes"

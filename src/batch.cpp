@@ -32,6 +32,7 @@
 
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "thread_sanitizer.h"
 
 namespace penumbra {
 
@@ -1124,16 +1125,22 @@ std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector
     // runners find the queue empty.
     const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
     tbb::task_arena arena(threads);
+    // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
+    const char forkKey = 0, joinKey = 0;
+    detail::tsanRelease(&forkKey);
     arena.execute([&] {
         tbb::task_group group;
         const size_t runners = std::min(selected.size(), size_t(threads));
         for (size_t r = 0; r < runners; ++r) {
-            group.run([&run] {
+            group.run([&run, &forkKey, &joinKey] {
+                detail::tsanAcquire(&forkKey);
                 for (size_t slot; (slot = run.next++) < run.selected.size();) runJob(run, slot);
+                detail::tsanRelease(&joinKey);
             });
         }
         group.wait();
     });
+    detail::tsanAcquire(&joinKey);
     return std::move(run.results);
 }
 

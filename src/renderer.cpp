@@ -1,6 +1,9 @@
 #include "penumbra/renderer.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdio>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -18,6 +21,7 @@
 #include "penumbra/error.h"
 #include "penumbra/form_factor.h"
 #include "surface_normal.h"
+#include "thread_sanitizer.h"
 
 namespace penumbra {
 
@@ -591,6 +595,28 @@ void checkRange(const std::string& flag, long value, long lo, long hi) {
 
 }  // namespace
 
+double renderImageBytes(int width, int height) {
+    // 3 colour channels and 4 AOVs as float, plus a viewing-ray hit record per pixel of a row
+    // per thread (counted generously as one more 32-byte record per pixel).
+    const double pixels = double(width) * double(height);
+    return pixels * (7.0 * sizeof(float) + 32.0);
+}
+
+void checkRenderMemory(int width, int height, const std::string& file, const std::string& where) {
+    constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
+    double limit = 1024.0 * kGiB;  // when sysconf cannot tell
+    const long pages = ::sysconf(_SC_PHYS_PAGES), pageSize = ::sysconf(_SC_PAGE_SIZE);
+    if (pages > 0 && pageSize > 0) limit = 0.75 * double(pages) * double(pageSize);
+    const double need = renderImageBytes(width, height);
+    if (need <= limit) return;
+    char text[200];
+    std::snprintf(text, sizeof text,
+                  "%d x %d pixels would need ~%.1f GiB for the image and its AOVs, over the "
+                  "limit of %.1f GiB (3/4 of this machine's memory)",
+                  width, height, need / kGiB, limit / kGiB);
+    throw InputError(file, where, text);
+}
+
 RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                     const RenderProgress& progress) {
     if (!scene.camera) {
@@ -642,6 +668,10 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                                                : std::max(1, tbb::info::default_concurrency());
 
     const int width = camera.width(), height = camera.height();
+    checkRenderMemory(width, height,
+                      settingsIn.width > 0 || settingsIn.height > 0 ? "" : scene.file,
+                      settingsIn.width > 0 || settingsIn.height > 0 ? "--width/--height"
+                                                                    : "/camera/width");
     RenderResult result;
     result.color = Image(width, height, 3);
     result.aovs.shadowRays = Image(width, height, 1);
@@ -653,9 +683,13 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;
     int rowsDone = 0;
+    // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
+    const char forkKey = 0, joinKey = 0;
+    detail::tsanRelease(&forkKey);
     auto renderRows = [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1),
                           [&](const tbb::blocked_range<int>& rows) {
+                              detail::tsanAcquire(&forkKey);
                               auto& state = states.local();
                               if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
                               for (int y = rows.begin(); y < rows.end(); ++y) {
@@ -665,6 +699,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                                       progress(++rowsDone, height);
                                   }
                               }
+                              detail::tsanRelease(&joinKey);
                           });
     };
     if (settings.threads < 0) {
@@ -673,6 +708,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         tbb::task_arena arena(threads);
         arena.execute(renderRows);
     }
+    detail::tsanAcquire(&joinKey);
 
     RenderStats& stats = result.stats;
     for (const auto& state : states) {

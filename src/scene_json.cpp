@@ -1216,6 +1216,23 @@ size_t Scene::lightIndex(const std::string& name) const {
                          "; the choice is ambiguous");
 }
 
+std::optional<size_t> Scene::obstacleContaining(const Vec3& p) const {
+    for (size_t i = 0; i < obstacles.size(); ++i) {
+        const ObstacleShape& shape = obstacles[i].shape;
+        bool inside = false;
+        if (const auto* s = std::get_if<AnalyticSphere>(&shape)) {
+            inside = glm::length(p - s->center) < s->radius;
+        } else if (const auto* b = std::get_if<AnalyticBox>(&shape)) {
+            inside = p.x > b->lo.x && p.y > b->lo.y && p.z > b->lo.z && p.x < b->hi.x &&
+                     p.y < b->hi.y && p.z < b->hi.z;
+        } else if (const auto* ls = std::get_if<LevelSetPtr>(&shape)) {
+            inside = *ls && sampleLevelSet(**ls, p) < 0.0;
+        }
+        if (inside) return i;
+    }
+    return std::nullopt;
+}
+
 Occluder Scene::makeOccluder() const {
     std::vector<ObstacleShape> shapes;
     shapes.reserve(obstacles.size());

@@ -22,6 +22,7 @@
 
 #include "level_set_impl.h"
 #include "penumbra/error.h"
+#include "thread_sanitizer.h"
 
 namespace penumbra {
 
@@ -438,8 +439,12 @@ FloatGrid::Ptr rasterize(const Field& field, const Box3& boundsWS, double voxel,
 
     std::vector<LeafT*> leaves(leafOrigins.size(), nullptr);
     const float fw = float(w);
+    // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
+    const char forkKey = 0, joinKey = 0;
+    detail::tsanRelease(&forkKey);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, leafOrigins.size(), 8),
                       [&](const tbb::blocked_range<size_t>& range) {
+                          detail::tsanAcquire(&forkKey);
                           for (size_t i = range.begin(); i != range.end(); ++i) {
                               auto leaf = std::make_unique<LeafT>(leafOrigins[i], fw, false);
                               bool any = false;
@@ -455,7 +460,9 @@ FloatGrid::Ptr rasterize(const Field& field, const Box3& boundsWS, double voxel,
                               }
                               if (any) leaves[i] = leaf.release();
                           }
+                          detail::tsanRelease(&joinKey);
                       });
+    detail::tsanAcquire(&joinKey);
     FloatTree& tree = grid->tree();
     for (LeafT* leaf : leaves) {
         if (leaf) tree.addLeaf(leaf);

@@ -105,6 +105,15 @@ struct RenderResult {
 /// be quick.
 using RenderProgress = std::function<void(int rowsDone, int rowsTotal)>;
 
+/// Bytes a width x height render holds at once: the colour image, its four AOVs and the per-row
+/// buffers (a slight overestimate).
+double renderImageBytes(int width, int height);
+
+/// Refuses (InputError naming `file` and `where`, with the estimate in GiB) an image whose
+/// buffers would take more than three quarters of this machine's memory, before any is
+/// allocated.
+void checkRenderMemory(int width, int height, const std::string& file, const std::string& where);
+
 /// Renders `scene` (which must have a camera: InputError naming "/camera" otherwise). Throws
 /// InputError for settings out of range (`where` names the command-line flag, e.g. "--width").
 RenderResult render(const Scene& scene, const RenderSettings& settings,

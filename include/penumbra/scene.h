@@ -99,6 +99,9 @@ struct Scene {
     /// Index of the light named `name`; with an empty name, the only light. Throws InputError
     /// when there is no such light or the choice is ambiguous.
     size_t lightIndex(const std::string& name) const;
+    /// Index of the first obstacle whose inside holds `p` (level sets: a negative interpolated
+    /// value), if any; used to warn about a camera placed inside an obstacle.
+    std::optional<size_t> obstacleContaining(const Vec3& p) const;
     /// An Occluder over every obstacle, in scene order.
     Occluder makeOccluder() const;
     /// Every obstacle as a level set whose grid is named after it, in scene order, for

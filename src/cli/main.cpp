@@ -22,8 +22,15 @@ int main(int argc, char** argv) {
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
-        int code = app.exit(e);
-        return code == 0 ? 0 : 2;
+        // --help and --version print their text and succeed; a malformed command line is bad
+        // input: one line with the program's prefix, exit code 2.
+        if (e.get_exit_code() == 0) return app.exit(e);
+        std::string what = e.what();
+        for (char& c : what) {
+            if (c == '\n') c = ' ';
+        }
+        std::cerr << "penumbra: error: " << what << " (see penumbra --help)\n";
+        return 2;
     }
     try {
         for (auto* sub : app.get_subcommands()) return runners.at(sub->get_name())();

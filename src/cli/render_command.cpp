@@ -161,6 +161,9 @@ int runRender(const RenderOptions& o) {
     if (o.given("--threads")) requireRange("--threads", o.threads, 1, 1024);
     if (o.given("--width")) requireRange("--width", o.width, 1, 65536);
     if (o.given("--height")) requireRange("--height", o.height, 1, 65536);
+    if (o.given("--width") && o.given("--height")) {
+        checkRenderMemory(o.width, o.height, "", "--width/--height");  // before loading
+    }
     requireRange("--aci-grid", o.aciGrid, 1, 32);
     requireRange("--aci-steps", o.aciSteps, 1, 12);
     requireRange("--max-span", o.maxSpan, 1, 4096);
@@ -203,6 +206,15 @@ int runRender(const RenderOptions& o) {
     Scene scene = loadScene(o.scene);
     if (!scene.camera) {
         throw InputError(o.scene, "/camera", "the scene has no camera, which rendering needs");
+    }
+
+    if (auto inside = scene.obstacleContaining(scene.camera->eye)) {
+        // Not an error (the view is all inside, or the obstacle is clipped by the camera), but
+        // rarely wanted: say so even with --quiet.
+        const Obstacle& ob = scene.obstacles[*inside];
+        std::cerr << "penumbra: warning: " << o.scene << ": /camera/eye: inside obstacle '"
+                  << (ob.name.empty() ? "obstacle_" + std::to_string(*inside) : ob.name)
+                  << "' (/obstacles/" << *inside << ")\n";
     }
 
     ProgressReporter reporter(!o.quiet);
