@@ -2,7 +2,7 @@
 // penumbra of a sphere and of a cube, against the exact answers (tests/exact_shadow.h).
 // Prints, per scene and occluder kind, the mean shadow rays per penumbra point and the mean
 // error relative to the unoccluded form factor, at the paper's defaults and at other settings.
-// Not a test: it only prints figures. Usage: bench_aci [points-per-line]
+// Not a test: it only prints figures. Usage: bench_aci [points-per-line [setting-filter]]
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -25,6 +25,7 @@ struct Line {
 
 struct Row {
     double raysPerPenumbraPoint = 0, meanRelError = 0, maxRelError = 0, usPerPoint = 0;
+    double firstPerPoint = 0, refinedPerPoint = 0, restartsPerPoint = 0;
     int penumbraPoints = 0;
 };
 
@@ -33,7 +34,7 @@ Row run(const Line& line, const RectLight& light, const Occluder& occ, const Aci
     ContourIntegrator aci(s);
     Row row;
     double err = 0, unocc = 0;
-    uint64_t rays = 0;
+    uint64_t rays = 0, first = 0, refined = 0, restarts = 0;
     const auto t0 = std::chrono::steady_clock::now();
     for (size_t i = 0; i < line.points.size(); ++i) {
         const Receiver& r = line.points[i];
@@ -43,23 +44,36 @@ Row run(const Line& line, const RectLight& light, const Occluder& occ, const Aci
         if (line.exact[i] > 1e-9 * u && line.exact[i] < u * (1 - 1e-9)) {
             ++row.penumbraPoints;
             rays += e.counts.shadowRays();
+            first += e.counts.firstLevelRays;
+            refined += e.counts.squaresRefined;
+            restarts += e.counts.restarts;
             err += std::abs(e.formFactor - line.exact[i]);
             unocc += u;
             row.maxRelError = std::max(row.maxRelError, std::abs(e.formFactor - line.exact[i]) / u);
+            if (std::getenv("BENCH_ACI_VERBOSE") &&
+                std::abs(e.formFactor - line.exact[i]) > 0.01 * u)
+                std::printf("  point %zu x=%.4f: F=%.6f exact=%.6f (%.2f%%), %llu rays\n", i,
+                            r.point.x, e.formFactor, line.exact[i],
+                            100 * std::abs(e.formFactor - line.exact[i]) / u,
+                            static_cast<unsigned long long>(e.counts.shadowRays()));
         }
     }
     const double secs =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     row.raysPerPenumbraPoint = double(rays) / std::max(1, row.penumbraPoints);
+    row.firstPerPoint = double(first) / std::max(1, row.penumbraPoints);
+    row.refinedPerPoint = double(refined) / std::max(1, row.penumbraPoints);
+    row.restartsPerPoint = double(restarts) / std::max(1, row.penumbraPoints);
     row.meanRelError = err / std::max(unocc, 1e-300);
     row.usPerPoint = 1e6 * secs / line.points.size();
     return row;
 }
 
 void print(const char* scene, const char* occluder, const char* setting, const Row& r) {
-    std::printf("%-7s %-22s %-26s %6d %10.2f %10.3f%% %9.3f%% %9.1f\n", scene, occluder, setting,
-                r.penumbraPoints, r.raysPerPenumbraPoint, 100 * r.meanRelError,
-                100 * r.maxRelError, r.usPerPoint);
+    std::printf("%-7s %-22s %-26s %6d %8.2f %6.2f %6.2f %6.2f %9.3f%% %8.3f%% %8.1f\n", scene,
+                occluder, setting, r.penumbraPoints, r.raysPerPenumbraPoint, r.firstPerPoint,
+                r.refinedPerPoint, r.restartsPerPoint, 100 * r.meanRelError, 100 * r.maxRelError,
+                r.usPerPoint);
 }
 
 }  // namespace
@@ -113,7 +127,8 @@ int main(int argc, char** argv) {
     };
     std::vector<Setting> settings;
     auto add = [&](const std::string& name, int grid, int steps, bool refine,
-                   bool guided = false, bool curved = false, int probes = 0) {
+                   bool guided = false, bool curved = false, int probes = 0,
+                   bool tangent = false) {
         AciSettings s;
         s.grid = grid;
         s.steps = steps;
@@ -122,6 +137,7 @@ int main(int argc, char** argv) {
         s.curvedContour = curved;  // the paper's rows integrate straight chords...
         s.midlineCheck = curved;   // ...and check case-3 squares on a random diagonal
         s.guidedProbes = probes;
+        s.tangentContour = tangent;
         s.rayOffset = 1e-6;
         settings.push_back({name, s});
     };
@@ -136,12 +152,26 @@ int main(int argc, char** argv) {
     add("guided 2x2, n=4", 2, 4, true, true, true);
     add("guided 2x2, n=3", 2, 3, true, true, true);
     add("guided 2x2, n=3, 1 probe", 2, 3, true, true, true, 1);
+    add("tangent 2x2, n=3", 2, 3, true, true, true, 1, true);
+    add("tangent 2x2, n=4", 2, 4, true, true, true, 1, true);
+    add("tangent 2x2, n=5", 2, 5, true, true, true, 1, true);
+    add("tangent 2x2, n=5, 2 probes", 2, 5, true, true, true, 2, true);
+    add("xguided 1x1, n=4", 1, 4, true, true, true);
+    add("xguided 1x1, n=4, 1 probe", 1, 4, true, true, true, 1);
+    add("xguided 1x1, n=5, 1 probe", 1, 5, true, true, true, 1);
+    add("xguided 2x2, n=2, 1 probe", 2, 2, true, true, true, 1);
+    add("xguided 2x2, n=3, 2 probe", 2, 3, true, true, true, 2);
 
     std::printf("Receiver lines of %d points; light 2 x 2 at height 4; errors relative to the "
                 "unoccluded form factor.\n", count);
-    std::printf("%-7s %-22s %-26s %6s %10s %11s %10s %9s\n", "scene", "occluder", "setting",
-                "points", "rays/pt", "mean err", "max err", "us/pt");
+    std::printf("%-7s %-22s %-26s %6s %8s %6s %6s %6s %10s %9s %8s\n", "scene", "occluder",
+                "setting", "points", "rays/pt", "1st", "refin", "restrt", "mean err", "max err",
+                "us/pt");
+    // An optional second argument keeps only the settings whose name contains it.
+    const std::string filter = argc > 2 ? argv[2] : "";
     for (const Case& c : cases)
-        for (const Setting& s : settings) print(c.scene, c.kind, s.name.c_str(), run(*c.line, light, c.occ, s.s));
+        for (const Setting& s : settings)
+            if (s.name.find(filter) != std::string::npos)
+                print(c.scene, c.kind, s.name.c_str(), run(*c.line, light, c.occ, s.s));
     return 0;
 }

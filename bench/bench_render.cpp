@@ -5,6 +5,7 @@
 // Prints its figures; never fails on a time.
 //
 //   bench_render [SCENE.json] [--size N] [--threads N] [--radiance-scale S] [--out DIR]
+//                [--aci-mode paper|arcs|tangent]
 //
 // SCENE defaults to vdb_scenes/default.json (run from the source tree), --size to 800 and
 // --threads to 2. --radiance-scale multiplies every light's radiance (the image is linear, so
@@ -17,6 +18,7 @@
 
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/contour_integrator.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
 
@@ -30,6 +32,7 @@ struct Args {
     int threads = 2;
     double radianceScale = 1.0;
     std::string out;
+    std::string aciMode = "tangent";
 };
 
 Args parseArgs(int argc, char** argv) {
@@ -47,6 +50,7 @@ Args parseArgs(int argc, char** argv) {
         else if (s == "--threads") a.threads = std::atoi(next().c_str());
         else if (s == "--radiance-scale") a.radianceScale = std::atof(next().c_str());
         else if (s == "--out") a.out = next();
+        else if (s == "--aci-mode") a.aciMode = next();
         else if (!s.empty() && s[0] != '-') a.scene = s;
         else {
             std::fprintf(stderr, "bench_render: unknown option %s\n", s.c_str());
@@ -85,11 +89,13 @@ int main(int argc, char** argv) {
         pipeline.width = args.size;
         pipeline.height = args.size;
         pipeline.threads = args.threads;
+        applyAciMode(pipeline.aci, parseAciMode(args.aciMode, "--aci-mode"));
         RenderSettings perPixel = pipeline;
         perPixel.method = Method::AciPixel;
 
-        std::printf("scene %s, %d x %d, radiance x %g, %d threads\n", args.scene.c_str(),
-                    args.size, args.size, args.radianceScale, args.threads);
+        std::printf("scene %s, %d x %d, radiance x %g, %d threads, ACI mode %s\n",
+                    args.scene.c_str(), args.size, args.size, args.radianceScale, args.threads,
+                    args.aciMode.c_str());
         RenderResult a = render(scene, pipeline);
         RenderResult b = render(scene, perPixel);
 

@@ -306,6 +306,7 @@ struct JobSpec {
     std::optional<int> width, height, aciGrid, aciSteps, maxSpan, samples, mcMaxDepth;
     std::optional<double> mcThreshold;
     std::optional<uint64_t> seed;
+    std::optional<AciMode> aciMode;
     std::string methodWhere, samplesWhere;
     std::map<std::string, std::string> set;  // normalized pointer -> JSON text; sorted
 };
@@ -324,7 +325,8 @@ public:
             requireObject(d, "/defaults");
             checkKeys(d, "/defaults",
                       {"scene", "set", "method", "width", "height", "aci_grid", "aci_steps",
-                       "max_span", "samples", "mc_threshold", "mc_max_depth", "seed"});
+                       "aci_mode", "max_span", "samples", "mc_threshold", "mc_max_depth",
+                       "seed"});
             readFields(d, "/defaults", defaults);
         }
         BatchManifest manifest;
@@ -359,8 +361,8 @@ public:
 private:
     static inline const std::vector<std::string> kJobKeys = {
         "scene",    "output",    "name",     "stats",        "set",          "method",
-        "width",    "height",    "aci_grid", "aci_steps",    "max_span",     "samples",
-        "mc_threshold", "mc_max_depth", "seed"};
+        "width",    "height",    "aci_grid", "aci_steps",    "aci_mode",     "max_span",
+        "samples",  "mc_threshold", "mc_max_depth", "seed"};
 
     [[noreturn]] void fail(const std::string& where, const std::string& message) const {
         throw InputError(mFile, where, message);
@@ -424,6 +426,14 @@ private:
         if (obj.contains("aci_steps")) {
             spec.aciSteps = readInt(obj["aci_steps"], at("aci_steps"), 1, 12);
         }
+        if (obj.contains("aci_mode")) {
+            const std::string mode = readString(obj["aci_mode"], at("aci_mode"));
+            try {
+                spec.aciMode = parseAciMode(mode, at("aci_mode"));
+            } catch (const InputError& e) {
+                fail(at("aci_mode"), e.message());  // with the manifest's name
+            }
+        }
         if (obj.contains("max_span")) {
             spec.maxSpan = readInt(obj["max_span"], at("max_span"), 1, 4096);
         }
@@ -477,6 +487,7 @@ private:
         s.height = spec.height.value_or(0);
         s.aci.grid = spec.aciGrid.value_or(s.aci.grid);
         s.aci.steps = spec.aciSteps.value_or(s.aci.steps);
+        if (spec.aciMode) applyAciMode(s.aci, *spec.aciMode);
         s.maxSpan = spec.maxSpan.value_or(s.maxSpan);
         // "samples" on a job of another method is a mistake; in "defaults" it is meant for the
         // Monte Carlo jobs only. Other methods keep the default Monte Carlo settings, so that
@@ -708,6 +719,7 @@ std::string sidecarJson(const BatchJob& job, const std::string& hash, int width,
     j["height"] = height;
     j["aci_grid"] = job.settings.aci.grid;
     j["aci_steps"] = job.settings.aci.steps;
+    j["aci_mode"] = aciModeName(aciModeOf(job.settings.aci));
     j["max_span"] = job.settings.maxSpan;
     if (isMonteCarlo(job.settings.method)) {
         const McSettings& mc = job.settings.mc;
@@ -835,6 +847,7 @@ void runJob(RunState& run, size_t slot) {
                 {"penumbra:method", st.method},
                 {"penumbra:aci_grid", std::to_string(st.aciGrid)},
                 {"penumbra:aci_steps", std::to_string(st.aciSteps)},
+                {"penumbra:aci_mode", st.aciMode},
                 {"penumbra:max_span", std::to_string(job.settings.maxSpan)},
                 {"penumbra:seconds", formatDouble(st.seconds)},
                 {"penumbra:viewing_rays", std::to_string(st.viewingRays)},
@@ -1081,7 +1094,8 @@ std::string jobHash(const BatchJob& job, const std::string& resolvedSceneText) {
         << "aci " << s.aci.grid << " " << s.aci.steps << " " << formatDouble(s.aci.rayOffset)
         << " " << formatDouble(s.aci.thresholdScale) << " " << s.aci.refine << " "
         << s.aci.gradient << " " << s.aci.seed << " " << s.aci.distanceGuided << " "
-        << s.aci.curvedContour << "\n"
+        << s.aci.curvedContour << " " << s.aci.midlineCheck << " " << s.aci.tangentContour
+        << " " << s.aci.guidedProbes << " " << aciModeName(aciModeOf(s.aci)) << "\n"
         << "pipeline " << s.maxSpan << " " << s.shaftCulling << " " << s.coherence << " "
         << s.adaptiveGrid << " " << s.maxGridFactor << "\n"
         << "mc " << s.mc.samples << " " << formatDouble(s.mc.threshold) << " " << s.mc.maxDepth

@@ -4,12 +4,17 @@
 #include <cmath>
 #include <limits>
 
+#include "penumbra/error.h"
+
 namespace penumbra {
 
 namespace {
 
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
+// tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
+// fraction of its length, and the obstacle it was measured to.
+constexpr size_t kTangentFloats = 5;
 
 struct LatticePoint {
     int a, b;
@@ -21,6 +26,8 @@ LatticePoint midpoint(LatticePoint p, LatticePoint q) { return {(p.a + q.a) / 2,
 struct Vertex {
     Vec3 c;
     Vec3 i;
+    Vec3 plane{0.0};  // tangentContour: unit normal of the grazing plane through M (0 unknown)
+    int obstacle = -1;  // tangentContour: the obstacle whose silhouette it is on (-1 unknown)
 };
 
 uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
@@ -66,6 +73,9 @@ struct ContourIntegrator::Lattice {
             self.mClear.assign(size, 0.0f);
             self.mGeneration = 0;
         }
+        if (s.mSettings.tangentContour && self.mNormal.size() < kTangentFloats * size) {
+            self.mNormal.assign(kTangentFloats * size, 0.0f);
+        }
         if (++self.mGeneration == 0) {  // wrapped: forget every stamp
             std::fill(self.mStamp.begin(), self.mStamp.end(), 0);
             self.mGeneration = 1;
@@ -99,6 +109,13 @@ struct ContourIntegrator::Lattice {
         const bool hidden = query.occluded(origin, target, &tHit,
                                            self.mSettings.distanceGuided ? &c : nullptr);
         if (c.known() && c.at > 0.0) clear = static_cast<float>(c.distance / c.at);
+        if (self.mSettings.tangentContour) {
+            const bool known = c.known() && c.at > 0.0;
+            float* t = &self.mNormal[kTangentFloats * idx];
+            for (int k = 0; k < 3; ++k) t[k] = known ? float(c.normal[k]) : 0.0f;
+            t[3] = known ? static_cast<float>(c.at / glm::length(target - origin)) : 0.0f;
+            t[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
+        }
         if (hidden) {
             const double len = glm::length(target - origin);
             s = static_cast<float>(std::clamp(tHit / len, 0.01, 1.0));
@@ -115,12 +132,228 @@ struct ContourIntegrator::Lattice {
         return self.mClear[static_cast<size_t>(q.b) * (N + 1) + q.a];
     }
 
+    Vec3 normalOf(LatticePoint q) const {
+        const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
+        const float* t = &self.mNormal[kTangentFloats * idx];
+        return Vec3(t[0], t[1], t[2]);
+    }
+    // Where q's ray passes closest to the surface, as a fraction of the ray (0 unknown).
+    double closestFractionOf(LatticePoint q) const {
+        return self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 3];
+    }
+    // The obstacle q's clearance was measured to (-1 unknown).
+    int obstacleOf(LatticePoint q) const {
+        return static_cast<int>(
+            self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 4]);
+    }
+
+    // tangentContour: where the contour crosses the line X(t) = from + t dir (world, on the
+    // light), predicted from the ray to lattice sample q alone. That ray passes at angular
+    // clearance c from the surface where the distance gradient is g; moving its end by delta
+    // on the light changes that clearance by (g . delta) / D to first order (D: the ray's
+    // length), so the contour is the line g . (X - Q) = -c D. NaN when q's ray knows nothing.
+    double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const {
+        const double c = clearanceOf(q);
+        const Vec3 g = normalOf(q);
+        if (!std::isfinite(c) || glm::dot(g, g) == 0.0) return std::nan("");
+        const Vec3 target = pointOf(q);
+        const double D = glm::length(target - origin);
+        const double slope = glm::dot(g, dir);
+        if (std::abs(slope) < 1e-9 * glm::length(dir)) return std::nan("");
+        return (-c * D - glm::dot(g, from - target)) / slope;
+    }
+
+    // The unit normal of the plane of grazing rays through the ray to lattice sample q, made
+    // exactly perpendicular to that ray (0 when unknown).
+    Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const {
+        const Vec3 g = normalOf(q);
+        if (glm::dot(g, g) == 0.0) return Vec3(0.0);
+        const Vec3 w = glm::normalize(onContour - origin);
+        const Vec3 gp = g - glm::dot(g, w) * w;
+        const double len = glm::length(gp);
+        return len > 1e-6 ? gp / len : Vec3(0.0);
+    }
+
+    // tangentContour's dichotomy: each probe goes where a Newton step from the bracket end with
+    // the smaller clearance puts the contour (the secant or the middle when neither end knows
+    // its distance), rounded toward the visible end so that the probe tends to be a visible ray
+    // just off the surface, whose gradient is the most reliable; after `guidedProbes` probes
+    // (at least one) the vertex is placed by the same rule inside the final bracket.
+    Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps) {
+        const int count = 1 << steps;
+        const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
+        auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
+        const Vec3 p0 = pointOf(vis);
+        const Vec3 step = pointOf(at(1)) - p0;  // world vector of one position
+        // Where the contour is predicted inside [lo, hi] (in positions from vis), and whether
+        // that prediction can stand as the vertex: a Newton step from the visible end (outside
+        // the surface the distance is exact, and its gradient points at the nearest face or
+        // edge, so a sharp silhouette's line comes out right), or a step of at most one
+        // position from the hidden end (inside, the gradient is only right on smooth surfaces).
+        struct Guess {
+            double e;
+            bool final;
+            int from;  // the bracket end whose Newton step it is, -1 for none
+        };
+        auto estimate = [&](int lo, int hi) -> Guess {
+            const double fromVis = newtonAlong(at(lo), p0, step);
+            if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi) return {fromVis, true, lo};
+            const double fromHid = newtonAlong(at(hi), p0, step);
+            if (std::isfinite(fromHid) && fromHid >= lo && fromHid <= hi)
+                return {fromHid, hi - fromHid <= 1.0, hi};
+            const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+            if (cl > 0.0f && ch < 0.0f)
+                return {lo + (hi - lo) * double(cl) / (double(cl) - double(ch)), false, -1};
+            return {0.5 * (lo + hi), false, -1};
+        };
+        int lo = 0, hi = count;
+        const int minProbes = std::max(1, self.mSettings.guidedProbes);
+        // At least minProbes probes, then more only while the prediction cannot stand; never
+        // more than the paper's `steps` (the bracket is then one position wide).
+        for (int probes = 0; hi - lo > 1; ++probes) {
+            const Guess g = estimate(lo, hi);
+            if (probes >= minProbes && g.final) break;
+            const int j = std::clamp(static_cast<int>(std::floor(g.e)), lo + 1, hi - 1);
+            (visible(at(j)) ? lo : hi) = j;
+        }
+        const Guess g = estimate(lo, hi);
+        const double e = std::clamp(g.e, double(lo), double(hi));
+        Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
+        if (peek(at(hi)) != kBelowHorizon) {
+            // The gradient of the end that placed the vertex; else the visible end's (outside
+            // the surface it points at the nearest edge or face, also on a sharp silhouette),
+            // else the hidden end's.
+            const int order[3] = {g.from, lo, hi};
+            for (int j : order) {
+                if (j < 0) continue;
+                v.plane = grazingPlane(at(j), v.c);
+                if (glm::dot(v.plane, v.plane) == 0.0) continue;
+                // The 3D contour point (Fig. 5): where that ray grazes the surface, carried
+                // over to the vertex's own ray.
+                const double h = closestFractionOf(at(j));
+                if (h > 0.0) v.i = origin + h * (v.c - origin);
+                v.obstacle = obstacleOf(at(j));
+                break;
+            }
+        }
+        return v;
+    }
+
+    // tangentContour: a contour piece from vertex a to vertex b, as the conic arc tangent to
+    // both vertices' tangent lines, which meet at K: a rational quadratic Bezier (a, K, b) of
+    // weight w. A convex arc with those end tangents lies inside the triangle aKb, so when that
+    // triangle's form factor is under the threshold the parabola (w = 1) is taken with no ray;
+    // otherwise one ray at 3/4 of the way from the chord's middle to K places the arc's
+    // shoulder by a Newton step (w = lambda / (1 - lambda), lambda being where the contour
+    // crosses that line: 1/2 for a parabola, 1 for a sharp corner at K). Returns false when the
+    // tangents are unknown or do not make such a triangle; the caller then checks the piece as
+    // in section 3.2.
+    struct Arc {
+        Vec3 k{0.0};
+        double w = 1.0;
+        bool straight = false;
+    };
+    bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc) {
+        if (glm::dot(a.plane, a.plane) == 0.0 || glm::dot(b.plane, b.plane) == 0.0) return false;
+        // Two obstacles' silhouettes meet somewhere between: their tangent lines say nothing
+        // about where, so the piece is checked and refined as in section 3.2.
+        if (a.obstacle != b.obstacle) return false;
+        const Vec3 ta = glm::cross(a.plane, lightNormal), tb = glm::cross(b.plane, lightNormal);
+        const double la = glm::length(ta), lb = glm::length(tb);
+        if (la < 1e-6 || lb < 1e-6) return false;
+        const Vec3 ua = ta / la, ub = tb / lb;
+        const Vec3 chord = b.c - a.c;
+        const double len = glm::length(chord);
+        if (len == 0.0) return false;
+        const double sinA = glm::dot(glm::cross(ua, chord / len), lightNormal);
+        const double sinB = glm::dot(glm::cross(ub, chord / len), lightNormal);
+        constexpr double kStraight = 0.01;  // |sin| of the tangents' angle to the chord
+        if (std::abs(sinA) < kStraight && std::abs(sinB) < kStraight) {
+            arc.straight = true;
+            return true;
+        }
+        const double den = glm::dot(glm::cross(ua, ub), lightNormal);
+        if (std::abs(den) < 1e-6) return false;
+        const double sa = glm::dot(glm::cross(b.c - a.c, ub), lightNormal) / den;
+        arc.k = a.c + sa * ua;
+        // K must project inside the chord and lie within the square (with half a side of
+        // margin): otherwise the tangents describe an S-curve or a piece the square cannot hold.
+        const double along = glm::dot(arc.k - a.c, chord) / (len * len);
+        if (!(along > 0.0 && along < 1.0)) return false;
+        const double side = double(s) / N;
+        const double ku = glm::dot(arc.k - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
+        const double kv = glm::dot(arc.k - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+        const double u0 = double(x0) / N, v0 = double(y0) / N;
+        if (ku < u0 - 0.5 * side || ku > u0 + 1.5 * side || kv < v0 - 0.5 * side ||
+            kv > v0 + 1.5 * side)
+            return false;
+        const double triangle = std::abs(edgeF(a.c, arc.k) + edgeF(arc.k, b.c) + edgeF(b.c, a.c));
+        if (triangle < 1.5 * thr) {
+            arc.w = 1.0;
+            return true;
+        }
+        // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
+        const Vec3 m = 0.5 * (a.c + b.c);
+        const Vec3 target = m + 0.75 * (arc.k - m);
+        const double tu = glm::dot(target - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
+        const double tv = glm::dot(target - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+        const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * N)), x0, x0 + s),
+                             std::clamp(static_cast<int>(std::lround(tv * N)), y0, y0 + s)};
+        if (sample(q, false) == kBelowHorizon) return false;
+        const double lambda = newtonAlong(q, m, arc.k - m);
+        if (!std::isfinite(lambda)) return false;
+        const double l = std::clamp(lambda, 0.0, 1.0);
+        if (l <= 0.02) {
+            arc.straight = true;
+        } else if (l >= 0.98) {
+            arc.w = std::numeric_limits<double>::infinity();  // a corner at K
+        } else {
+            arc.w = l / (1.0 - l);
+        }
+        return true;
+    }
+
+    // Emits the arc from a to b (8 chords; the polygon a K b for a corner). Obstacle points
+    // along it take the hit fraction interpolated between a's and b's.
+    void emitArc(const Vertex& a, const Vertex& b, const Arc& arc) {
+        auto fraction = [&](const Vertex& v) {
+            const double lc = glm::length(v.c - rec.point);
+            return lc > 0.0 ? glm::length(v.i - rec.point) / lc : 1.0;
+        };
+        const double ha = fraction(a), hb = fraction(b);
+        auto onObstacle = [&](const Vec3& c, double t) {
+            return rec.point + ((1.0 - t) * ha + t * hb) * (c - rec.point);
+        };
+        if (arc.straight) {
+            emit(a.i, b.i);
+            return;
+        }
+        if (!std::isfinite(arc.w)) {
+            const Vec3 ik = onObstacle(arc.k, 0.5);
+            emit(a.i, ik);
+            emit(ik, b.i);
+            return;
+        }
+        constexpr int kChords = 8;
+        Vec3 prev = a.i;
+        for (int i = 1; i <= kChords; ++i) {
+            const double t = double(i) / kChords;
+            const double b0 = (1 - t) * (1 - t), b1 = 2.0 * arc.w * t * (1 - t), b2 = t * t;
+            const Vec3 c = (b0 * a.c + b1 * arc.k + b2 * b.c) / (b0 + b1 + b2);
+            const Vec3 next = i == kChords ? b.i : onObstacle(c, t);
+            emit(prev, next);
+            prev = next;
+        }
+    }
+
     // Dichotomy between a visible and a hidden lattice point (section 3.1); the vertex is the
     // middle of the final interval, or the exact horizon crossing when the hidden end is below
     // the receiver's tangent plane. With distanceGuided, samples go where the secant through
     // the ends' signed clearances puts the silhouette (still lattice points, still narrowing
     // to one final interval) and the vertex is interpolated inside that interval.
     Vertex crossing(LatticePoint vis, LatticePoint hid, int steps) {
+        if (self.mSettings.tangentContour && self.mSettings.distanceGuided && steps > 0)
+            return crossingNewton(vis, hid, steps);
         if (!self.mSettings.distanceGuided) {
             for (int i = 0; i < steps; ++i) {
                 const LatticePoint m = midpoint(vis, hid);
@@ -274,10 +507,24 @@ struct ContourIntegrator::Lattice {
         // Section 3.2: one more contour point per piece; refine where the change exceeds the
         // form factor of a strip of width epsilon around the piece.
         Vertex z[2];
+        Arc arcs[2];
+        bool arcOk[2] = {false, false};
+        if (self.mSettings.tangentContour && self.mSettings.distanceGuided) {
+            for (int q = 0; q < nPieces; ++q) {
+                const Vertex& a = x[pieces[q].exitSide];
+                const Vertex& b = x[pieces[q].entrySide];
+                const double pieceThr =
+                    thr >= 0.0 ? thr
+                               : stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld) *
+                                     self.mSettings.thresholdScale;
+                arcOk[q] = tangentArc(a, b, x0, y0, s, pieceThr, arcs[q]);
+            }
+        }
         double change = 0.0, ownThr = 0.0;
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
+            if (arcOk[q]) continue;
             if (pieces[q].midline && (!visible(pieces[q].checkVis) || visible(pieces[q].checkHid))) {
                 // A side's middle disagrees with its corners: the contour crosses that side
                 // twice, which only a split square can represent.
@@ -312,7 +559,9 @@ struct ContourIntegrator::Lattice {
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
-            if (self.mSettings.curvedContour) {
+            if (arcOk[q]) {
+                emitArc(a, b, arcs[q]);
+            } else if (self.mSettings.curvedContour) {
                 // Treat X, Z, Y as points of a parabolic arc: the area between the arc and its
                 // chord is the triangle XZY divided by 3 s (1 - s), s being Z's position along
                 // the chord (Archimedes: 4/3 of the triangle when Z is the apex, s = 1/2).
@@ -411,6 +660,42 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
             out[static_cast<size_t>(j) * (p + 1) + i] = !query.occluded(origin, target);
         }
     return out;
+}
+
+const char* aciModeName(AciMode mode) {
+    switch (mode) {
+        case AciMode::Paper: return "paper";
+        case AciMode::Arcs: return "arcs";
+        case AciMode::Tangent: return "tangent";
+    }
+    return "tangent";
+}
+
+AciMode parseAciMode(const std::string& name, const std::string& where) {
+    for (AciMode m : {AciMode::Paper, AciMode::Arcs, AciMode::Tangent})
+        if (name == aciModeName(m)) return m;
+    throw InputError("", where, "unknown ACI mode '" + name + "' (expected paper, arcs or tangent)");
+}
+
+void applyAciMode(AciSettings& s, AciMode mode) {
+    const bool beyondPaper = mode != AciMode::Paper;
+    s.curvedContour = beyondPaper;
+    s.midlineCheck = beyondPaper;
+    s.distanceGuided = mode == AciMode::Tangent;
+    s.tangentContour = mode == AciMode::Tangent;
+    s.guidedProbes = mode == AciMode::Tangent ? 1 : 0;
+}
+
+AciMode aciModeOf(const AciSettings& s) {
+    for (AciMode m : {AciMode::Paper, AciMode::Arcs}) {
+        AciSettings t = s;
+        applyAciMode(t, m);
+        if (t.curvedContour == s.curvedContour && t.midlineCheck == s.midlineCheck &&
+            t.distanceGuided == s.distanceGuided && t.tangentContour == s.tangentContour &&
+            t.guidedProbes == s.guidedProbes)
+            return m;
+    }
+    return AciMode::Tangent;
 }
 
 Estimate contourIntegral(const Receiver& r, const RectLight& light, Occluder::Query& query,

@@ -2,6 +2,7 @@
 
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
@@ -25,6 +26,15 @@ void ensureOpenVdbInitialized() {
     // several threads at once is not documented as safe, hence call_once.
     static std::once_flag once;
     std::call_once(once, [] { openvdb::initialize(); });
+}
+
+const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
+    std::call_once(mFar->once, [&] {
+        const openvdb::math::Transform::Ptr xform = mGrid->transform().copy();
+        xform->preScale(factor);
+        mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, 3.0f, xform.get());
+    });
+    return *mFar->grid;
 }
 
 LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {

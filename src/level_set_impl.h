@@ -9,6 +9,9 @@
 
 #include <openvdb/openvdb.h>
 
+#include <memory>
+#include <mutex>
+
 #include "penumbra/level_set.h"
 #include "penumbra/math.h"
 
@@ -24,7 +27,18 @@ class LevelSet {
     const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
     double voxelSize() const { return mVoxelSize; }
 
+    /// The far-field companion used for shadow-ray clearance (occluder.cpp): the same surface
+    /// rebuilt at `factor` times coarser voxels with an exterior band of `band` of them. Built
+    /// on first use (thread-safe) and kept with the level set, so that every Occluder, render
+    /// and batch job over it shares one.
+    const openvdb::FloatGrid& farField(double factor, float band) const;
+
   private:
+    struct FarCache {
+        std::once_flag once;
+        openvdb::FloatGrid::Ptr grid;
+    };
+    std::shared_ptr<FarCache> mFar = std::make_shared<FarCache>();
     openvdb::FloatGrid::ConstPtr mGrid;
     Box3 mBoundsWS;
     double mVoxelSize = 0.0;

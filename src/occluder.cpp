@@ -78,18 +78,8 @@ bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, doubl
 
 struct Occluder::FarField {
     explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
-    const openvdb::FloatGrid& get() {
-        std::call_once(once, [this] {
-            const openvdb::FloatGrid& fine = levelSet->grid();
-            const openvdb::math::Transform::Ptr xform = fine.transform().copy();
-            xform->preScale(kFarVoxelFactor);
-            grid = openvdb::tools::levelSetRebuild(fine, 0.0f, kFarBand, 3.0f, xform.get());
-        });
-        return *grid;
-    }
+    const openvdb::FloatGrid& get() const { return levelSet->farField(kFarVoxelFactor, kFarBand); }
     LevelSetPtr levelSet;
-    std::once_flag once;
-    openvdb::FloatGrid::Ptr grid;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -176,8 +166,79 @@ Clearance sphereClearance(const AnalyticSphere& s, const Vec3& from, const Vec3&
                           double t1) {
     Clearance c;
     c.at = std::clamp(glm::dot(s.center - from, dir), t0, t1);
-    c.distance = glm::length(from + c.at * dir - s.center) - s.radius;
+    const Vec3 away = from + c.at * dir - s.center;
+    const double r = glm::length(away);
+    c.distance = r - s.radius;
+    if (r > 0.0) c.normal = away / r;
     return c;
+}
+
+/// Signed distance from p to an axis-aligned box, and its unit gradient.
+double boxDistance(const AnalyticBox& b, const Vec3& p, Vec3* gradient) {
+    const Vec3 c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
+    const Vec3 rel = p - c;
+    const Vec3 q = glm::abs(rel) - h;
+    const Vec3 sign(rel.x < 0.0 ? -1.0 : 1.0, rel.y < 0.0 ? -1.0 : 1.0, rel.z < 0.0 ? -1.0 : 1.0);
+    const Vec3 outside = glm::max(q, Vec3(0.0));
+    const double lo = glm::length(outside);
+    if (lo > 0.0) {
+        if (gradient) *gradient = sign * outside / lo;
+        return lo;
+    }
+    int k = q.x > q.y ? (q.x > q.z ? 0 : 2) : (q.y > q.z ? 1 : 2);
+    if (gradient) {
+        *gradient = Vec3(0.0);
+        (*gradient)[k] = sign[k];
+    }
+    return q[k];
+}
+
+/// Signed distance between the segment from + t dir, t in [t0, t1], and a box's surface: the
+/// box's distance is convex along a line, so a golden-section search finds its minimum.
+Clearance boxClearance(const AnalyticBox& b, const Vec3& from, const Vec3& dir, double t0,
+                       double t1) {
+    constexpr double kInvPhi = 0.6180339887498949;
+    double a = t0, z = t1;
+    double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
+    double f1 = boxDistance(b, from + m1 * dir, nullptr), f2 = boxDistance(b, from + m2 * dir, nullptr);
+    for (int i = 0; i < 60 && z - a > 1e-12 * (1.0 + t1); ++i) {
+        if (f1 < f2) {
+            z = m2;
+            m2 = m1;
+            f2 = f1;
+            m1 = z - kInvPhi * (z - a);
+            f1 = boxDistance(b, from + m1 * dir, nullptr);
+        } else {
+            a = m1;
+            m1 = m2;
+            f1 = f2;
+            m2 = a + kInvPhi * (z - a);
+            f2 = boxDistance(b, from + m2 * dir, nullptr);
+        }
+    }
+    Clearance c;
+    c.at = 0.5 * (a + z);
+    c.distance = boxDistance(b, from + c.at * dir, &c.normal);
+    return c;
+}
+
+/// Unit gradient of `grid` at a world-space point by central differences one voxel apart (zero
+/// where the values are flat, e.g. beyond the band).
+template <typename Accessor>
+Vec3 gradientAt(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& p) {
+    const double h = grid.voxelSize()[0];
+    auto phi = [&](const Vec3& q) {
+        return double(openvdb::tools::BoxSampler::sample(
+            acc, grid.worldToIndex(openvdb::Vec3d(q.x, q.y, q.z))));
+    };
+    Vec3 g;
+    for (int k = 0; k < 3; ++k) {
+        Vec3 e(0.0);
+        e[k] = h;
+        g[k] = phi(p + e) - phi(p - e);
+    }
+    const double len = glm::length(g);
+    return len > 0.0 ? g / len : Vec3(0.0);
 }
 
 /// Smallest value of `grid` along the segment from + t dir, t in [t0, t1], by sphere tracing
@@ -205,6 +266,7 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
         t += std::max(0.8 * std::abs(phi), 0.5 * voxel);
     }
     c.distance = minPhi;
+    if (std::isfinite(minPhi)) c.normal = gradientAt(grid, acc, from + c.at * dir);
     return c;
 }
 
@@ -226,7 +288,7 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
     if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
     const double w = 3.0 * coarseVoxel;
     const Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir,
-                                     std::max(t0, c.at - w), std::min(t1, c.at + w));
+                                      std::max(t0, c.at - w), std::min(t1, c.at + w));
     return std::abs(f.distance) < 0.98 * fineBand ? f : c;
 }
 
@@ -238,6 +300,8 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
     if (clearance) *clearance = Clearance{};
     bool clearanceKnown = true;
     double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
+    Vec3 clearanceNormal(0.0);
+    int clearanceObstacle = -1;
     bool touched = false;
     const Vec3 delta = to - from;
     const double length = glm::length(delta);
@@ -263,17 +327,17 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
             bool near = true;
             if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
                 ci = sphereClearance(*sphere, from, dir, tMin, length - eps);
+            } else if (const auto* box = std::get_if<AnalyticBox>(&shape)) {
+                ci = boxClearance(*box, from, dir, tMin, length - eps);
             } else {
                 Box3 wide = bounds;
-                const double pad = std::holds_alternative<AnalyticBox>(shape)
-                                       ? glm::length(bounds.hi - bounds.lo)  // no distance: stay away
-                                       : kFarBand * kFarVoxelFactor *
-                                             std::get<LevelSetPtr>(shape)->voxelSize();
+                const double pad =
+                    kFarBand * kFarVoxelFactor * std::get<LevelSetPtr>(shape)->voxelSize();
                 wide.lo -= Vec3(pad);
                 wide.hi += Vec3(pad);
                 double c0 = tMin, c1 = length - eps;
                 near = wide.clipRay(from, invDir, c0, c1);
-                if (near && std::holds_alternative<LevelSetPtr>(shape) && mImpl->levelSets[i])
+                if (near && mImpl->levelSets[i])
                     ci = levelSetClearance(*mImpl->levelSets[i], mOccluder->mFar[i]->get(), from,
                                            dir, c0, c1);
             }
@@ -284,6 +348,8 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                 } else if (ci.distance < clearanceMin) {
                     clearanceMin = ci.distance;
                     clearanceAt = ci.at;
+                    clearanceNormal = ci.normal;
+                    clearanceObstacle = static_cast<int>(i);
                 }
             }
         }
@@ -338,6 +404,8 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
     if (clearance && touched && clearanceKnown) {
         clearance->distance = clearanceMin;
         clearance->at = clearanceAt;
+        clearance->normal = clearanceNormal;
+        clearance->obstacle = clearanceObstacle;
     }
     return hit;
 }

@@ -436,9 +436,12 @@ private:
         st.maxDepth = std::max(st.maxDepth, e.counts.maxDepth);
         if (adapt && mSettings.adaptiveGrid) {
             // Vedel 1993, section 5: finer after a refinement of depth >= 2 or an inconsistency,
-            // coarser again when no refinement was needed, unchanged after depth 1.
+            // coarser again when no refinement was needed, unchanged after depth 1. The tangent
+            // mode refines only where its tangent arcs cannot stand (two silhouettes meeting,
+            // unknown distances), so there a refinement of depth 1 already asks for finer.
             int base = mSettings.aci.grid, top = base * mSettings.maxGridFactor;
-            if (e.counts.maxDepth >= 2 || e.counts.restarts > 0) {
+            const int finerDepth = mSettings.aci.tangentContour ? 1 : 2;
+            if (e.counts.maxDepth >= finerDepth || e.counts.restarts > 0) {
                 if (mGrid < top) {
                     mGrid = std::min(top, mGrid + 1);
                     ++st.gridIncreases;
@@ -721,6 +724,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     stats.lights = int(scene.lights.size());
     stats.aciGrid = settings.aci.grid;
     stats.aciSteps = settings.aci.steps;
+    stats.aciMode = aciModeName(aciModeOf(settings.aci));
     stats.seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return result;

@@ -43,6 +43,7 @@ std::string RenderStats::toJson() const {
     j["lights"] = lights;
     j["aci_grid"] = aciGrid;
     j["aci_steps"] = aciSteps;
+    j["aci_mode"] = aciMode;
     j["seconds"] = seconds;
     j["viewing_rays"] = viewingRays;
     j["viewing_ray_hits"] = viewingRayHits;

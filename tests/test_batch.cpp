@@ -513,6 +513,81 @@ TEST_CASE("runBatch renders what render() renders, isolates a failing job, and r
     CHECK(fs::exists(dir / "out/.keep.tmp-1"));
 }
 
+TEST_CASE("aci_mode picks the estimator's variant, is recorded, and re-renders when changed",
+          "[batch]") {
+    const TempDir tmp("aci_mode");
+    const fs::path& dir = tmp.path;
+    writeFile(dir / "a.json", kScene);
+
+    // Parsed: "defaults" give it, a job overrides it, and no mode means the default (tangent).
+    const BatchManifest m = parseManifest(R"({"defaults": {"aci_mode": "paper"},
+        "jobs": [{"scene": "a.json", "output": "p.exr"},
+                 {"scene": "a.json", "output": "a.exr", "aci_mode": "arcs"},
+                 {"scene": "a.json", "output": "t.exr", "aci_mode": "tangent"}]})",
+                                          "m.json", dir.string());
+    REQUIRE(m.jobs.size() == 3);
+    CHECK(aciModeOf(m.jobs[0].settings.aci) == AciMode::Paper);
+    CHECK_FALSE(m.jobs[0].settings.aci.curvedContour);
+    CHECK_FALSE(m.jobs[0].settings.aci.distanceGuided);
+    CHECK(aciModeOf(m.jobs[1].settings.aci) == AciMode::Arcs);
+    CHECK(aciModeOf(m.jobs[2].settings.aci) == AciMode::Tangent);
+    const BatchManifest plain =
+        parseManifest(R"({"jobs": [{"scene": "a.json", "output": "p.exr"}]})", "m.json",
+                      dir.string());
+    CHECK(aciModeOf(plain.jobs[0].settings.aci) == AciMode::Tangent);
+
+    // The mode enters the hash: the same scene and output under another mode is another job.
+    std::set<std::string> hashes;
+    for (const BatchJob& job : m.jobs) hashes.insert(jobHash(job, resolveSceneText(job)));
+    CHECK(hashes.size() == 3);
+    CHECK(jobHash(plain.jobs[0], resolveSceneText(plain.jobs[0])) ==
+          jobHash(m.jobs[2], resolveSceneText(m.jobs[2])));  // "tangent" is the default
+
+    // An unknown or mistyped mode names the manifest and the pointer.
+    auto refusal = [](const std::string& text) {
+        try {
+            parseManifest(text, "m.json", "/tmp");
+        } catch (const InputError& e) {
+            CHECK(e.file() == "m.json");
+            return std::string(e.what());
+        }
+        return std::string("(accepted)");
+    };
+    CHECK(refusal(R"({"jobs": [{"scene": "a.json", "output": "a.exr"},
+                               {"scene": "a.json", "output": "b.exr", "aci_mode": "x"}]})") ==
+          "m.json: /jobs/1/aci_mode: unknown ACI mode 'x' (expected paper, arcs or tangent)");
+    CHECK_THAT(refusal(R"({"defaults": {"aci_mode": "Paper"},
+                           "jobs": [{"scene": "a.json", "output": "a.exr"}]})"),
+               Catch::StartsWith("m.json: /defaults/aci_mode: unknown ACI mode 'Paper'"));
+    CHECK_THAT(refusal(R"({"sweep": {"scene": "a.json", "output": "a{frame}.exr", "frames": 2,
+                                     "aci_mode": 1}})"),
+               Catch::StartsWith("m.json: /sweep/aci_mode: must be a non-empty string"));
+
+    // Run: the mode is in the statistics, the image's metadata and the sidecar; changing it
+    // renders the job again under --resume, keeping it does not.
+    writeFile(dir / "m.json", R"({"jobs": [{"scene": "a.json", "output": "out/a.exr",
+                                            "stats": "out/a.stats.json", "aci_mode": "paper"}]})");
+    BatchManifest run = loadManifest((dir / "m.json").string());
+    BatchOptions options;
+    options.threads = 2;
+    std::vector<JobResult> r = runBatch(run, {0}, options);
+    REQUIRE(r[0].status == JobStatus::Rendered);
+    CHECK(readImageAttribute((dir / "out/a.exr").string(), "penumbra:aci_mode") == "paper");
+    CHECK(readFile(dir / "out/a.exr.job.json").find("\"aci_mode\": \"paper\"") !=
+          std::string::npos);
+    CHECK(readFile(dir / "out/a.stats.json").find("\"aci_mode\": \"paper\"") !=
+          std::string::npos);
+    options.resume = true;
+    r = runBatch(run, {0}, options);
+    CHECK(r[0].status == JobStatus::Skipped);
+    writeFile(dir / "m.json", R"({"jobs": [{"scene": "a.json", "output": "out/a.exr",
+                                            "stats": "out/a.stats.json", "aci_mode": "arcs"}]})");
+    run = loadManifest((dir / "m.json").string());
+    r = runBatch(run, {0}, options);
+    CHECK(r[0].status == JobStatus::Rendered);
+    CHECK(readImageAttribute((dir / "out/a.exr").string(), "penumbra:aci_mode") == "arcs");
+}
+
 // ---------------------------------------------------------------------------------------------
 // The program, as users and clusters run it
 

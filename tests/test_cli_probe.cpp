@@ -212,3 +212,53 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
     CHECK(bad.exitCode == 2);
     CHECK(bad.out.empty());
 }
+
+TEST_CASE("probe --aci-mode picks the estimator's variant; an unknown mode is refused",
+          "[cli][probe]") {
+    const fs::path dir = makeTempDir("mode");
+    std::ofstream(dir / "scene.json") << kScene;
+    const std::string scene = (dir / "scene.json").string();
+    const std::string input = "x,y,z,nx,ny,nz\n1.2,0.43,0,0,0,1\n0.6,0.4,0,0,0,1\n";
+
+    RectLight light;
+    light.corner = Vec3(-1, -1, 4);
+    light.edgeU = Vec3(0, 2, 0);
+    light.edgeV = Vec3(2, 0, 0);
+    Occluder occ({AnalyticSphere{Vec3(0.3, 0.2, 2.0), 0.7}});
+    Occluder::Query query = occ.makeQuery();
+    const std::vector<Vec3> points = {Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0)};
+    AciSettings paper;
+    applyAciMode(paper, AciMode::Paper);
+    // As probe does: rays start 1.5 voxels off the surface (a hair off it without voxels).
+    paper.rayOffset = occ.minVoxelSize() > 0 ? 1.5 * occ.minVoxelSize() : 1e-9;
+
+    const Run run = runPenumbra("probe " + scene + " --aci-mode paper", input, dir);
+    INFO(readFile(dir / "stderr.txt"));
+    REQUIRE(run.exitCode == 0);
+    std::istringstream lines(run.out);
+    std::string line;
+    std::getline(lines, line);
+    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
+    for (const Vec3& p : points) {
+        REQUIRE(std::getline(lines, line));
+        double v[8];
+        char comma;
+        std::istringstream cells(line);
+        cells >> v[0];
+        for (int i = 1; i < 8; ++i) cells >> comma >> v[i];
+        const Estimate e = contourIntegral({p, Vec3(0, 0, 1)}, light, query, paper);
+        CHECK(v[3] == Approx(e.formFactor).epsilon(1e-9));
+        CHECK(v[4] == Approx(e.gradient.x).margin(1e-9));
+        CHECK(v[5] == Approx(e.gradient.y).margin(1e-9));
+        CHECK(v[7] == e.counts.shadowRays());
+    }
+    CHECK_FALSE(std::getline(lines, line));
+
+    const Run bad = runPenumbra("probe " + scene + " --aci-mode bogus", input, dir);
+    CHECK(bad.exitCode == 2);
+    CHECK(bad.out.empty());
+    const std::string err = readFile(dir / "stderr.txt");
+    CHECK(err.find("--aci-mode") != std::string::npos);
+    CHECK(err.find("bogus") != std::string::npos);
+    CHECK(std::count(err.begin(), err.end(), '\n') == 1);
+}

@@ -373,6 +373,10 @@ TEST_CASE("E24 command-line value out of range", "[errors]") {
     SECTION("--method") {
         expectRefused(c, sceneWith(""), "--method foo", 2, {"--method: unknown method 'foo'"});
     }
+    SECTION("--aci-mode") {
+        expectRefused(c, sceneWith(""), "--aci-mode fast", 2,
+                      {"--aci-mode: unknown ACI mode 'fast'"});
+    }
 }
 
 TEST_CASE("E25 malformed command line: exit code 2, output untouched", "[errors]") {

@@ -18,6 +18,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "penumbra/form_factor.h"
@@ -41,10 +42,19 @@ struct AciSettings {
     /// surface, or how deep it goes in; level sets are distance fields) to place dichotomy
     /// samples by the secant rule and contour vertices by interpolation. Same lattice, same
     /// final interval, fewer rays. Off reproduces the paper's bisection exactly.
-    bool distanceGuided = false;
+    bool distanceGuided = true;
     /// With distanceGuided: stop a dichotomy after this many rays when both ends of its
     /// bracket know their clearance, and interpolate (0: always narrow to the final interval).
-    int guidedProbes = 0;
+    int guidedProbes = 1;
+    /// Beyond the paper (needs distanceGuided): a level set's distance gradient where a ray
+    /// passes closest to the surface gives the plane of the grazing rays there, hence the
+    /// contour's tangent on the light at each contour vertex. Dichotomies take Newton steps from
+    /// the end nearer the contour; each piece between two vertices is integrated as the conic
+    /// arc tangent to both tangent lines, with no check ray when the triangle the tangents make
+    /// is under the strip threshold and one ray (placing the arc's shoulder) otherwise; only
+    /// pieces whose tangents are unknown or inconsistent take the section 3.2 check and
+    /// refinement. See docs/estimator.md.
+    bool tangentContour = true;
     /// Beyond the paper: integrate each checked piece X-Z-Y as a parabolic arc through its
     /// three points instead of two chords (no extra rays; see docs/estimator.md).
     bool curvedContour = true;
@@ -56,6 +66,22 @@ struct AciSettings {
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;
 };
+
+/// Named combinations of the options above, for the command line (`--aci-mode`), batch
+/// manifests (`aci_mode`) and statistics:
+///  - "paper": Vedel's method exactly (bisection, straight chords, a random diagonal for case 3);
+///  - "arcs": the paper's rays, with parabolic arcs and the midline check;
+///  - "tangent" (default): the distance-guided Newton dichotomy and tangent arcs.
+enum class AciMode { Paper, Arcs, Tangent };
+
+/// The mode's name as the command line spells it.
+const char* aciModeName(AciMode mode);
+/// Parses a mode name; InputError naming `where` (a flag or JSON pointer) for an unknown one.
+AciMode parseAciMode(const std::string& name, const std::string& where);
+/// Sets the options of `s` that the mode fixes (grid, steps and the rest are kept).
+void applyAciMode(AciSettings& s, AciMode mode);
+/// The mode `s` corresponds to (Tangent for combinations no mode names exactly).
+AciMode aciModeOf(const AciSettings& s);
 
 struct AciCounts {
     uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
@@ -107,6 +133,8 @@ private:
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
+    std::vector<float> mNormal;    // tangentContour: x, y, z of the distance gradient at the
+                                   // ray's closest approach (0 unknown)
     uint32_t mGeneration = 0;
 };
 

@@ -34,10 +34,15 @@ using ObstacleShape = std::variant<AnalyticSphere, AnalyticBox, LevelSetPtr>;
 /// What a level set knows beyond yes or no: how far a shadow segment passes from the nearest
 /// surface (distance > 0), or how deep it goes inside (distance < 0), and where (`at`, the
 /// distance from the segment's start). Level sets know distances only inside their narrow band;
-/// beyond it, and for analytic boxes, the clearance is unknown (NaN).
+/// beyond it the clearance is unknown (NaN). Analytic spheres and boxes know it everywhere. `normal` is the unit
+/// gradient of the signed distance at that place (zero when unknown): at the segment's closest
+/// approach it is perpendicular to the segment, so the plane through the segment's start with
+/// this normal is, to first order, the plane of the rays that graze the surface there.
 struct Clearance {
     double distance = std::numeric_limits<double>::quiet_NaN();
     double at = 0.0;
+    Vec3 normal{0.0};
+    int obstacle = -1;  ///< index (in the Occluder) of the obstacle it is measured to
     bool known() const { return std::isfinite(distance); }
 };
 

@@ -20,6 +20,7 @@ struct RenderStats {
     int lights = 0;
     int aciGrid = 0;   ///< base first-level grid p (p x p squares)
     int aciSteps = 0;  ///< dichotomy steps n
+    std::string aciMode;  ///< the estimator's variant: "paper", "arcs" or "tangent" (aciModeName)
     double seconds = 0.0;  ///< wall time of the render (not merged: set once)
 
     // Counts. A "pixel" below is one viewing ray; pixel-light pairs are counted per light.

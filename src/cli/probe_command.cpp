@@ -29,8 +29,7 @@ struct ProbeOptions {
     std::string light;
     int grid = 2;
     int steps = 5;
-    bool distanceGuided = false;
-    bool straightChords = false;
+    std::string aciMode = "tangent";
     int samples = 0;  // 0: the method's default (renderer.h's defaultSamples)
     double mcThreshold = 0.01;
     int mcMaxDepth = 8;
@@ -70,6 +69,7 @@ int runProbe(const ProbeOptions& opt) {
                          "mc-ratio, got '" + opt.method + "'");
     if (opt.samplesGiven && !isMonteCarlo(method))
         throw InputError("", "--samples", "only applies to the Monte Carlo methods");
+    const AciMode aciMode = parseAciMode(opt.aciMode, "--aci-mode");
     if (!(opt.mcThreshold > 0.0) || !std::isfinite(opt.mcThreshold))
         throw InputError("", "--mc-threshold", "must be a finite number > 0");
     if ((static_cast<long>(opt.grid) << (opt.steps + 1)) > kMaxLatticeUnits)
@@ -84,8 +84,7 @@ int runProbe(const ProbeOptions& opt) {
     AciSettings settings;
     settings.grid = opt.grid;
     settings.steps = opt.steps;
-    settings.distanceGuided = opt.distanceGuided;
-    settings.curvedContour = !opt.straightChords;
+    applyAciMode(settings, aciMode);
     // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
     settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
     ContourIntegrator integrator(settings);
@@ -186,12 +185,11 @@ Runner addProbeCommand(CLI::App& app) {
     sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (0-12)")
         ->check(CLI::Range(0, 12))
         ->capture_default_str();
-    sub->add_flag("--aci-distance-guided", opt->distanceGuided,
-                  "Place dichotomy samples by the secant rule on the obstacles' signed "
-                  "clearance (fewer rays on smooth obstacles; see docs/estimator.md)");
-    sub->add_flag("--aci-straight-chords", opt->straightChords,
-                  "Integrate each checked contour piece as two straight chords, exactly as the "
-                  "paper (default: as a parabolic arc through its three points)");
+    sub->add_option("--aci-mode", opt->aciMode,
+                    "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the "
+                    "midline check), tangent (distance-guided Newton dichotomy and tangent arcs; "
+                    "see docs/estimator.md)")
+        ->capture_default_str();
     return [opt] { return runProbe(*opt); };
 }
 

@@ -32,6 +32,7 @@ struct RenderOptions {
     int height = 0;
     int aciGrid = 2;
     int aciSteps = 5;
+    std::string aciMode = "tangent";
     int maxSpan = 32;
     int samples = 0;             // 0: the method's default (defaultSamples)
     double mcThreshold = 0.01;
@@ -103,6 +104,7 @@ ImageMetadata metadataFor(const RenderOptions& o, const RenderSettings& settings
         {"penumbra:method", st.method},
         {"penumbra:aci_grid", std::to_string(st.aciGrid)},
         {"penumbra:aci_steps", std::to_string(st.aciSteps)},
+        {"penumbra:aci_mode", st.aciMode},
         {"penumbra:max_span", std::to_string(o.maxSpan)},
         {"penumbra:threads", std::to_string(st.threads)},
         {"penumbra:seconds", formatNumber(st.seconds)},
@@ -166,6 +168,7 @@ int runRender(const RenderOptions& o) {
     }
     requireRange("--aci-grid", o.aciGrid, 1, 32);
     requireRange("--aci-steps", o.aciSteps, 1, 12);
+    const AciMode aciMode = parseAciMode(o.aciMode, "--aci-mode");
     requireRange("--max-span", o.maxSpan, 1, 4096);
     if (o.given("--samples")) {
         if (!isMonteCarlo(settings.method)) {
@@ -195,6 +198,7 @@ int runRender(const RenderOptions& o) {
     settings.height = o.height;
     settings.aci.grid = o.aciGrid;
     settings.aci.steps = o.aciSteps;
+    applyAciMode(settings.aci, aciMode);
     settings.aci.gradient = !o.aovGradient.empty();
     settings.maxSpan = o.maxSpan;
     settings.mc.samples = o.samples;
@@ -274,6 +278,11 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_option("--aci-grid", o->aciGrid, "First-level grid p: p x p squares on the light")
         ->capture_default_str();
     cmd->add_option("--aci-steps", o->aciSteps, "Dichotomy steps n along a crossed side")
+        ->capture_default_str();
+    cmd->add_option("--aci-mode", o->aciMode,
+                    "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the "
+                    "midline check), tangent (distance-guided Newton dichotomy and tangent arcs; "
+                    "see docs/estimator.md)")
         ->capture_default_str();
     cmd->add_option("--max-span", o->maxSpan, "Longest span of pixels shaded together")
         ->capture_default_str();
