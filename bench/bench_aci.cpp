@@ -141,26 +141,23 @@ int main(int argc, char** argv) {
         s.rayOffset = 1e-6;
         settings.push_back({name, s});
     };
-    // Rows 1-4: the paper's method (straight chords, bisection). Rows 5-7: Penumbra's defaults
-    // and options beyond the paper.
+    // Rows 1-4: the paper's method (straight chords, bisection). Then Penumbra's modes beyond
+    // the paper: "arcs" (parabolic arcs, midline check), the distance-guided secant dichotomy,
+    // and the tangent mode, whose 2x2, n=5 row is the default of AciSettings and the CLI.
     add("paper 2x2, n=5", 2, 5, true);
     add("paper 2x2, n=5, no refine", 2, 5, false);
     add("paper 2x2, n=6", 2, 6, true);
     add("paper 4x4, n=4", 4, 4, true);
-    add("default 2x2, n=5", 2, 5, true, false, true);
+    add("arcs 2x2, n=5", 2, 5, true, false, true);
     add("guided 2x2, n=5", 2, 5, true, true, true);
     add("guided 2x2, n=4", 2, 4, true, true, true);
     add("guided 2x2, n=3", 2, 3, true, true, true);
     add("guided 2x2, n=3, 1 probe", 2, 3, true, true, true, 1);
     add("tangent 2x2, n=3", 2, 3, true, true, true, 1, true);
     add("tangent 2x2, n=4", 2, 4, true, true, true, 1, true);
-    add("tangent 2x2, n=5", 2, 5, true, true, true, 1, true);
+    add("DEFAULT tangent 2x2, n=5", 2, 5, true, true, true, 1, true);
     add("tangent 2x2, n=5, 2 probes", 2, 5, true, true, true, 2, true);
-    add("xguided 1x1, n=4", 1, 4, true, true, true);
-    add("xguided 1x1, n=4, 1 probe", 1, 4, true, true, true, 1);
-    add("xguided 1x1, n=5, 1 probe", 1, 5, true, true, true, 1);
-    add("xguided 2x2, n=2, 1 probe", 2, 2, true, true, true, 1);
-    add("xguided 2x2, n=3, 2 probe", 2, 3, true, true, true, 2);
+    add("tangent 1x1, n=5", 1, 5, true, true, true, 1, true);
 
     std::printf("Receiver lines of %d points; light 2 x 2 at height 4; errors relative to the "
                 "unoccluded form factor.\n", count);

@@ -31,6 +31,7 @@
 #include "penumbra/compare.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/contour_integrator.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
 
@@ -415,19 +416,15 @@ int main(int argc, char** argv) {
         Row solidAngleTime = bench.run(
             "mc-solid-angle, ACI's time (" + std::to_string(timeSamples) + " samples)", saTime);
 
-        // ACI tuned for fewer rays (beyond the paper, docs/estimator.md): distance-guided
-        // dichotomy with 2 steps, fixed first-level grid; and mc-solid-angle at its rays.
-        RenderSettings tuned = bench.base(Method::Aci);
-        tuned.aci.distanceGuided = true;
-        tuned.aci.steps = 2;
-        tuned.adaptiveGrid = false;
-        Row aciTuned = bench.run("aci tuned (guided, n=2, fixed first-level grid)", tuned);
-        const int tunedSamples = std::max(1, int(std::lround(raysPerVr(aciTuned))));
-        RenderSettings saTuned = sa;
-        saTuned.mc.samples = tunedSamples;
-        Row solidAngleTuned = bench.run(
-            "mc-solid-angle, tuned ACI's rays (" + std::to_string(tunedSamples) + " samples)",
-            saTuned);
+        // The same pipeline with the paper's estimator exactly, and with the "arcs" mode (the
+        // paper's rays, parabolic arcs and the midline check): what the default tangent mode
+        // (docs/estimator.md) gains over them.
+        RenderSettings paperSettings = bench.base(Method::Aci);
+        applyAciMode(paperSettings.aci, AciMode::Paper);
+        Row aciPaper = bench.run("aci --aci-mode paper (Vedel 1993 exactly)", paperSettings);
+        RenderSettings arcsSettings = bench.base(Method::Aci);
+        applyAciMode(arcsSettings.aci, AciMode::Arcs);
+        Row aciArcs = bench.run("aci --aci-mode arcs", arcsSettings);
 
         std::vector<Row> rows;
         rows.push_back(std::move(ref));
@@ -438,8 +435,8 @@ int main(int argc, char** argv) {
         rows.push_back(std::move(ratio));
         rows.push_back(std::move(areaRow));
         rows.push_back(std::move(solidAngleTime));
-        rows.push_back(std::move(aciTuned));
-        rows.push_back(std::move(solidAngleTuned));
+        rows.push_back(std::move(aciPaper));
+        rows.push_back(std::move(aciArcs));
         const Row& refRow = rows[0];
         const Row& aciRow = rows[1];
         std::printf(
@@ -470,8 +467,8 @@ int main(int argc, char** argv) {
             thousands(as.aciEvaluations).c_str(), thousands(as.patternEvaluations).c_str(),
             thousands(as.interpolatedPixels).c_str(), thousands(as.gridIncreases).c_str(),
             thousands(as.restarts).c_str());
-        std::printf("tuned ACI: %.2f rays/VR at %.3f; mc-solid-angle at its rays: %.3f (%.2fx)\n",
-                    raysPerVr(rows[8]), rows[8].diff, rows[9].diff, rows[9].diff / rows[8].diff);
+        std::printf("paper mode: %.2f rays/VR at %.3f; arcs mode: %.2f rays/VR at %.3f\n",
+                    raysPerVr(rows[8]), rows[8].diff, raysPerVr(rows[9]), rows[9].diff);
 
         // -------------------------------------------------------------------------------------
         // Crops of one penumbra: the pictures, then their error maps against the reference
@@ -541,11 +538,11 @@ int main(int argc, char** argv) {
             series.push_back(s);
         }
         {
-            Series s{"aci, guided", {}};
-            for (int steps : {2, 3, 4, 5}) {
+            Series s{"aci, paper mode", {}};
+            for (int steps : {2, 3, 4, 5, 6}) {
                 RenderSettings rs = sweep.base(Method::Aci);
+                applyAciMode(rs.aci, AciMode::Paper);
                 rs.aci.steps = steps;
-                rs.aci.distanceGuided = true;
                 add(s, "steps " + std::to_string(steps), rs);
             }
             series.push_back(s);

@@ -424,6 +424,46 @@ TEST_CASE("render refuses a scene without camera and settings out of range", "[r
     CHECK_THROWS_AS(parseMethod("mc"), InputError);
 }
 
+TEST_CASE("penumbra render reports what building the level sets cost, in --verbose and --stats",
+          "[renderer][cli]") {
+    fs::path dir = fs::temp_directory_path() / ("penumbra_render_build_" + std::to_string(::getpid()));
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    std::ofstream(dir / "scene.json") << R"({
+      "camera": {"eye": [0.3,-3,3.2], "look_at": [0,0,0.3], "width": 12, "height": 10},
+      "lights": [{"corner": [-0.5,-0.5,2], "edge_u": [0,1,0], "edge_v": [1,0,0]}],
+      "obstacles": [{"name": "ball", "type": "sphere", "center": [0.1,0.05,0.9], "radius": 0.3},
+                    {"name": "exact", "type": "sphere", "center": [0.8,0,0.5], "radius": 0.2,
+                     "analytic": true}],
+      "receivers": [{"type": "plane", "point": [0,0,0], "normal": [0,0,1]}],
+      "level_set": {"voxel_size": 0.02}
+    })";
+    const std::string stats = (dir / "stats.json").string();
+    CommandResult r = runPenumbra("render " + shellQuote((dir / "scene.json").string()) + " -o " +
+                                      shellQuote((dir / "out.exr").string()) + " --stats " +
+                                      shellQuote(stats) + " --quiet --verbose",
+                                  dir);
+    INFO(r.err);
+    CHECK(r.code == 0);
+    CHECK_THAT(r.err, Catch::Contains("obstacle 'ball' (sphere): ") && Catch::Contains(" voxels, ") &&
+                          Catch::Contains("obstacle 'exact' (sphere): analytic") &&
+                          Catch::Contains("level sets: "));
+    nlohmann::json j;
+    std::ifstream(stats) >> j;
+    REQUIRE(j.contains("build"));
+    const nlohmann::json& b = j["build"];
+    REQUIRE(b["obstacles"].size() == 2);
+    CHECK(b["obstacles"][0]["name"] == "ball");
+    CHECK(b["obstacles"][0]["active_voxels"].get<uint64_t>() > 1000);
+    CHECK(b["obstacles"][0]["bytes"].get<uint64_t>() > 0);
+    CHECK(b["obstacles"][0]["voxel_size"].get<double>() == Approx(0.02));
+    CHECK(b["obstacles"][1]["analytic"] == true);
+    CHECK(b["active_voxels"] == b["obstacles"][0]["active_voxels"]);
+    CHECK(b["seconds"].get<double>() >= 0.0);
+    CHECK(b["memory_limit_bytes"].get<double>() > 0.0);
+    fs::remove_all(dir);
+}
+
 TEST_CASE("penumbra render writes the image and statistics, and refuses bad flags in one line",
           "[renderer][cli]") {
     fs::path dir = fs::temp_directory_path() / ("penumbra_render_cli_" + std::to_string(::getpid()));

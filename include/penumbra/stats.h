@@ -22,6 +22,9 @@ struct RenderStats {
     int aciSteps = 0;  ///< dichotomy steps n
     std::string aciMode;  ///< the estimator's variant: "paper", "arcs" or "tangent" (aciModeName)
     double seconds = 0.0;  ///< wall time of the render (not merged: set once)
+    /// The scene's obstacle build report (BuildReport::toJson(): voxels, bytes, seconds per
+    /// obstacle), written as "build" when set; the command line sets it (not merged).
+    std::string buildJson;
 
     // Counts. A "pixel" below is one viewing ray; pixel-light pairs are counted per light.
     uint64_t viewingRays = 0;                ///< one per pixel

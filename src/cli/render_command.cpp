@@ -42,6 +42,7 @@ struct RenderOptions {
     std::string stats;
     std::string aovRays, aovFormFactor, aovGradient, aovMask;
     bool quiet = false;
+    bool verbose = false;
     const CLI::App* command = nullptr;  // to tell options given from defaults
     bool given(const char* flag) const { return command && command->count(flag) > 0; }
 };
@@ -212,6 +213,7 @@ int runRender(const RenderOptions& o) {
         throw InputError(o.scene, "/camera", "the scene has no camera, which rendering needs");
     }
 
+    if (o.verbose) std::cerr << scene.build.toText();
     if (auto inside = scene.obstacleContaining(scene.camera->eye)) {
         // Not an error (the view is all inside, or the obstacle is clipped by the camera), but
         // rarely wanted: say so even with --quiet.
@@ -241,7 +243,11 @@ int runRender(const RenderOptions& o) {
     if (!o.aovMask.empty()) {
         writeScalarAov(o.aovMask, "--aov-mask", result.aovs.mask, false, metadata);
     }
-    if (!o.stats.empty()) writeStatsJson(o.stats, st);
+    if (!o.stats.empty()) {
+        RenderStats withBuild = st;
+        withBuild.buildJson = scene.build.toJson();
+        writeStatsJson(o.stats, withBuild);
+    }
 
     if (!o.quiet) {
         std::printf("penumbra: wrote %s (%dx%d, %s, %d threads, %.2f s): %llu shadow rays, "
@@ -308,6 +314,9 @@ Runner addRenderCommand(CLI::App& app) {
                     "Magnitude of the form factor's gradient (.png: heat map)");
     cmd->add_option("--aov-mask", o->aovMask, "1 where shadow rays were cast, 0 elsewhere");
     cmd->add_flag("-q,--quiet", o->quiet, "No progress or summary");
+    cmd->add_flag("-v,--verbose", o->verbose,
+                  "Report what building the obstacles' level sets cost (voxels, memory, seconds "
+                  "per obstacle) on stderr");
     o->command = cmd;
     return [o]() { return runRender(*o); };
 }
