@@ -13,8 +13,9 @@ namespace {
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
-// fraction of its length, and the obstacle it was measured to.
-constexpr size_t kTangentFloats = 5;
+// fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
+// an earlier receiver point's ray (reuseCorners: its distances are approximate).
+constexpr size_t kTangentFloats = 6;
 
 struct LatticePoint {
     int a, b;
@@ -29,6 +30,28 @@ struct Vertex {
     Vec3 plane{0.0};  // tangentContour: unit normal of the grazing plane through M (0 unknown)
     int obstacle = -1;  // tangentContour: the obstacle whose silhouette it is on (-1 unknown)
 };
+
+// Traces one shadow ray from `origin` to `target` and records what it tells: the lattice's
+// sample value, the angular clearance and, in tangent mode, the gradient data and bound.
+ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
+                                   const AciSettings& settings) {
+    ContourIntegrator::Corner out;
+    out.origin = origin;
+    out.clear = std::numeric_limits<float>::quiet_NaN();
+    double tHit = 0.0;
+    Clearance c;
+    const bool hidden = query.occluded(origin, target, &tHit, settings.distanceGuided ? &c : nullptr);
+    const double len = glm::length(target - origin);
+    const bool known = c.known() && c.at > 0.0;
+    if (known) out.clear = static_cast<float>(c.distance / c.at);
+    for (int k = 0; k < 3; ++k) out.tangent[k] = known ? float(c.normal[k]) : 0.0f;
+    out.tangent[3] = known ? static_cast<float>(c.at / len) : 0.0f;
+    out.tangent[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
+    out.tangent[5] = 0.0f;
+    out.bound = c.bound;
+    out.sample = hidden ? static_cast<float>(std::clamp(tHit / len, 0.01, 1.0)) : kVisible;
+    return out;
+}
 
 uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
     uint32_t h = seed * 0x9E3779B9u ^ static_cast<uint32_t>(x) * 0x85EBCA6Bu ^
@@ -102,26 +125,29 @@ struct ContourIntegrator::Lattice {
             s = kBelowHorizon;
             return s;
         }
-        (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
-        if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
-        double tHit = 0.0;
-        Clearance c;
-        const bool hidden = query.occluded(origin, target, &tHit,
-                                           self.mSettings.distanceGuided ? &c : nullptr);
-        if (c.known() && c.at > 0.0) clear = static_cast<float>(c.distance / c.at);
-        if (self.mSettings.tangentContour) {
-            const bool known = c.known() && c.at > 0.0;
-            float* t = &self.mNormal[kTangentFloats * idx];
-            for (int k = 0; k < 3; ++k) t[k] = known ? float(c.normal[k]) : 0.0f;
-            t[3] = known ? static_cast<float>(c.at / glm::length(target - origin)) : 0.0f;
-            t[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
+        // A first-level corner of the base grid may be answered by an earlier receiver
+        // point's ray (reuseCorners).
+        const int s0 = 2 << n;
+        ContourIntegrator::Corner* kept = nullptr;
+        if (self.mSettings.reuseCorners && firstLevel && q.a % s0 == 0 && q.b % s0 == 0) {
+            kept = self.reusableCorner(light, p, q.a / s0, q.b / s0);
         }
-        if (hidden) {
-            const double len = glm::length(target - origin);
-            s = static_cast<float>(std::clamp(tHit / len, 0.01, 1.0));
+        ContourIntegrator::Corner ray;
+        if (kept && kept->bound != 0.0 && glm::length(origin - kept->origin) < std::abs(kept->bound)) {
+            ray = *kept;
+            ray.tangent[5] = 1.0f;  // its distances are the earlier point's
+            ++counts.reusedRays;
         } else {
-            s = kVisible;
+            (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
+            if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
+            ray = traceRay(query, origin, target, self.mSettings);
+            if (kept) *kept = ray;
         }
+        clear = ray.clear;
+        if (self.mSettings.tangentContour) {
+            std::copy(ray.tangent, ray.tangent + kTangentFloats, &self.mNormal[kTangentFloats * idx]);
+        }
+        s = ray.sample;
         return s;
     }
     bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
@@ -140,6 +166,10 @@ struct ContourIntegrator::Lattice {
     // Where q's ray passes closest to the surface, as a fraction of the ray (0 unknown).
     double closestFractionOf(LatticePoint q) const {
         return self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 3];
+    }
+    // Whether q was answered by an earlier receiver point's ray (its distances approximate).
+    bool staleOf(LatticePoint q) const {
+        return self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 5] != 0.0f;
     }
     // The obstacle q's clearance was measured to (-1 unknown).
     int obstacleOf(LatticePoint q) const {
@@ -196,11 +226,14 @@ struct ContourIntegrator::Lattice {
             int from;  // the bracket end whose Newton step it is, -1 for none
         };
         auto estimate = [&](int lo, int hi) -> Guess {
+            // A reused first-level sample's distances are another point's: good enough to aim a
+            // probe, not to place a vertex.
             const double fromVis = newtonAlong(at(lo), p0, step);
-            if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi) return {fromVis, true, lo};
+            if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi)
+                return {fromVis, !staleOf(at(lo)), lo};
             const double fromHid = newtonAlong(at(hi), p0, step);
             if (std::isfinite(fromHid) && fromHid >= lo && fromHid <= hi)
-                return {fromHid, hi - fromHid <= 1.0, hi};
+                return {fromHid, hi - fromHid <= 1.0 && !staleOf(at(hi)), hi};
             const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
             if (cl > 0.0f && ch < 0.0f)
                 return {lo + (hi - lo) * double(cl) / (double(cl) - double(ch)), false, -1};
@@ -646,6 +679,18 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     return est;
 }
 
+ContourIntegrator::Corner* ContourIntegrator::reusableCorner(const RectLight& light, int grid,
+                                                             int i, int j) {
+    const size_t count = static_cast<size_t>(grid + 1) * (grid + 1);
+    if (mCorners.size() != count || mCornerGrid != grid || mCornerLight.corner != light.corner ||
+        mCornerLight.edgeU != light.edgeU || mCornerLight.edgeV != light.edgeV) {
+        mCorners.assign(count, Corner{});
+        mCornerGrid = grid;
+        mCornerLight = light;
+    }
+    return &mCorners[static_cast<size_t>(j) * (grid + 1) + i];
+}
+
 std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLight& light,
                                                 Occluder::Query& query, AciCounts& counts) {
     const int p = std::max(1, mSettings.grid);
@@ -656,8 +701,20 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
         for (int i = 0; i <= p; ++i) {
             const Vec3 target = light.point(double(i) / p, double(j) / p);
             if (glm::dot(target - r.point, r.normal) <= 0.0) continue;
-            ++counts.firstLevelRays;
-            out[static_cast<size_t>(j) * (p + 1) + i] = !query.occluded(origin, target);
+            uint8_t& o = out[static_cast<size_t>(j) * (p + 1) + i];
+            if (!mSettings.reuseCorners) {
+                ++counts.firstLevelRays;
+                o = !query.occluded(origin, target);
+                continue;
+            }
+            Corner* kept = reusableCorner(light, p, i, j);
+            if (kept->bound != 0.0 && glm::length(origin - kept->origin) < std::abs(kept->bound)) {
+                ++counts.reusedRays;
+            } else {
+                ++counts.firstLevelRays;
+                *kept = traceRay(query, origin, target, mSettings);
+            }
+            o = kept->sample == kVisible;
         }
     return out;
 }

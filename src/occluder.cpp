@@ -279,17 +279,31 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
         slot.farAccessor = std::make_unique<openvdb::FloatGrid::ConstAccessor>(
             coarse.getConstAccessor());
     }
-    const Clearance c = traceMinimum(coarse, *slot.farAccessor, from, dir, t0, t1);
+    Clearance c = traceMinimum(coarse, *slot.farAccessor, from, dir, t0, t1);
     if (!std::isfinite(c.distance)) return Clearance{};
     const double coarseVoxel = coarse.voxelSize()[0];
     const double fineBand = slot.grid->background();
-    if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * 3.0 * coarseVoxel)
-        return Clearance{};  // beyond the companion's band: unknown
+    // The bound: the march samples every 0.8 |phi| (at least half a voxel) and phi is
+    // 1-Lipschitz, so between samples it stays above 0.6 of the sampled minimum less half a
+    // voxel; a sampled value inside is as deep as it says (kept at 0.9 for interpolation).
+    auto bound = [&](double d, double voxel) { return d > 0.0 ? 0.6 * d - 0.5 * voxel : 0.9 * d; };
+    if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * 3.0 * coarseVoxel) {
+        Clearance unknown;  // beyond the companion's band: only the bound is known
+        unknown.bound = bound(c.distance > 0.0 ? 0.98 * coarse.background()
+                                               : -0.98 * 3.0 * coarseVoxel,
+                              coarseVoxel);
+        return unknown;
+    }
+    c.bound = bound(c.distance, coarseVoxel);
     if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
     const double w = 3.0 * coarseVoxel;
-    const Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir,
-                                      std::max(t0, c.at - w), std::min(t1, c.at + w));
-    return std::abs(f.distance) < 0.98 * fineBand ? f : c;
+    Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir, std::max(t0, c.at - w),
+                               std::min(t1, c.at + w));
+    if (!(std::abs(f.distance) < 0.98 * fineBand)) return c;
+    // Outside the refined window only the companion's bound holds.
+    f.bound = std::min(c.bound, bound(f.distance, slot.grid->voxelSize()[0]));
+    if (f.distance < 0.0) f.bound = std::min(f.bound, 0.9 * f.distance);
+    return f;
 }
 
 }  // namespace
@@ -302,6 +316,9 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
     double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
     Vec3 clearanceNormal(0.0);
     int clearanceObstacle = -1;
+    // Smallest and largest per-obstacle bounds (see Clearance::bound); 0 marks "unknown".
+    double boundMin = std::numeric_limits<double>::infinity();
+    bool boundKnown = true;
     bool touched = false;
     const Vec3 delta = to - from;
     const double length = glm::length(delta);
@@ -340,6 +357,17 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                 if (near && mImpl->levelSets[i])
                     ci = levelSetClearance(*mImpl->levelSets[i], mOccluder->mFar[i]->get(), from,
                                            dir, c0, c1);
+            }
+            if (!near) {
+                // The segment misses the obstacle's bounds widened by `pad`.
+                const double pad =
+                    kFarBand * kFarVoxelFactor * std::get<LevelSetPtr>(shape)->voxelSize();
+                boundMin = std::min(boundMin, pad);
+            } else if (std::holds_alternative<LevelSetPtr>(shape)) {
+                if (ci.bound == 0.0) boundKnown = false;
+                boundMin = std::min(boundMin, ci.bound);
+            } else {
+                boundMin = std::min(boundMin, ci.distance);  // analytic: exact
             }
             if (near) {
                 touched = true;
@@ -401,6 +429,16 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
         }
     }
     if (hit && tHit) *tHit = best;
+    if (clearance) {
+        // Unblocked: every obstacle must be provably away. Blocked: one provably deep is enough.
+        if (hit) {
+            clearance->bound = boundMin < 0.0 ? boundMin : 0.0;
+        } else {
+            clearance->bound = boundKnown && boundMin > 0.0
+                                   ? (std::isfinite(boundMin) ? boundMin : 1e300)
+                                   : 0.0;
+        }
+    }
     if (clearance && touched && clearanceKnown) {
         clearance->distance = clearanceMin;
         clearance->at = clearanceAt;

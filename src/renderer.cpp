@@ -174,6 +174,9 @@ struct PixelSum {
     double formFactor = 0.0;
     Vec3 gradient{0.0};
     uint64_t rays = 0;
+    // Shadow rays were needed here: traced at this pixel, or first-level rays reused from an
+    // earlier pixel of the span (the same pixels for every method: Table 1's denominator).
+    bool shadowed = false;
 };
 
 // What the pipeline keeps of one full ACI evaluation.
@@ -297,6 +300,13 @@ public:
     void shadeSpan(int x0, int x1) {
         RenderStats& st = mTs.stats;
         ++st.spans;
+        // First-level rays are reused only within one span (so that a pixel's value does not
+        // depend on which thread shaded what before), and only on receiver planes: a ray that
+        // starts on a curved obstacle's own surface is not measured near its start.
+        mTs.integrator.forgetCorners();
+        mReuse = mSettings.reuseFirstLevel && mSettings.aci.tangentContour &&
+                 mTs.hits[size_t(x0)].object >= 0 &&
+                 size_t(mTs.hits[size_t(x0)].object) < mCtx.scene.receivers.size();
         Box3 spanBox;
         int litCount = 0;
         mTs.lit.assign(size_t(x1 - x0 + 1), kDark);
@@ -414,6 +424,7 @@ private:
             default: e = monteCarloRatio(r, mLight, mTs.shadow, s); break;
         }
         mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        mTs.sums[size_t(x)].shadowed = true;
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;
         mTs.stats.secondLevelRays += e.counts.secondLevelRays;
         store(x, e.formFactor, Vec3(0.0));
@@ -422,15 +433,18 @@ private:
     Estimate evaluate(int x, bool adapt) {
         AciSettings s = mSettings.aci;
         s.grid = mGrid;
+        s.reuseCorners = mReuse;
         mTs.integrator.setSettings(s);
         uint64_t before = mTs.shadow.raysCast();
         Estimate e = mTs.integrator.evaluate(receiver(x), mLight, mTs.shadow);
         mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        mTs.sums[size_t(x)].shadowed = true;
         RenderStats& st = mTs.stats;
         ++st.aciEvaluations;
         st.firstLevelRays += e.counts.firstLevelRays;
         st.secondLevelRays += e.counts.secondLevelRays;
         st.cacheHits += e.counts.cacheHits;
+        st.reusedRays += e.counts.reusedRays;
         st.restarts += e.counts.restarts;
         st.squaresRefined += e.counts.squaresRefined;
         st.maxDepth = std::max(st.maxDepth, e.counts.maxDepth);
@@ -464,14 +478,17 @@ private:
     std::vector<uint8_t> pattern(int x, int grid) {
         AciSettings s = mSettings.aci;
         s.grid = grid;
+        s.reuseCorners = mReuse;
         mTs.integrator.setSettings(s);
         AciCounts counts;
         uint64_t before = mTs.shadow.raysCast();
         std::vector<uint8_t> p = mTs.integrator.pattern(receiver(x), mLight, mTs.shadow, counts);
         mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
+        mTs.sums[size_t(x)].shadowed = true;
         ++mTs.stats.patternEvaluations;
         mTs.stats.firstLevelRays += counts.firstLevelRays;
         mTs.stats.secondLevelRays += counts.secondLevelRays;
+        mTs.stats.reusedRays += counts.reusedRays;
         return p;
     }
 
@@ -534,6 +551,7 @@ private:
     size_t mLightIndex;
     int mRow;
     int mGrid = 2;
+    bool mReuse = false;  // reuse first-level rays in this span (AciSettings::reuseCorners)
 };
 
 void renderRow(const Context& ctx, ThreadState& ts, int y) {
@@ -582,9 +600,10 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
         ctx.aovs.shadowRays.at(x, y) = float(s.rays);
         ctx.aovs.formFactor.at(x, y) = float(s.formFactor);
         ctx.aovs.gradient.at(x, y) = float(glm::length(s.gradient));
-        ctx.aovs.mask.at(x, y) = s.rays > 0 ? 1.0f : 0.0f;
+        const bool shadowed = s.rays > 0 || s.shadowed;
+        ctx.aovs.mask.at(x, y) = shadowed ? 1.0f : 0.0f;
         st.shadowRays += s.rays;
-        if (s.rays > 0) ++st.viewingRaysWithShadowRays;
+        if (shadowed) ++st.viewingRaysWithShadowRays;
     }
 }
 

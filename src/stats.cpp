@@ -21,6 +21,7 @@ void RenderStats::merge(const RenderStats& o) {
     firstLevelRays += o.firstLevelRays;
     secondLevelRays += o.secondLevelRays;
     cacheHits += o.cacheHits;
+    reusedRays += o.reusedRays;
     spans += o.spans;
     culledSpans += o.culledSpans;
     closedFormPixels += o.closedFormPixels;
@@ -53,6 +54,7 @@ std::string RenderStats::toJson() const {
     j["first_level_rays"] = firstLevelRays;
     j["second_level_rays"] = secondLevelRays;
     j["cache_hits"] = cacheHits;
+    j["reused_first_level_rays"] = reusedRays;
     j["spans"] = spans;
     j["culled_spans"] = culledSpans;
     j["closed_form_pixels"] = closedFormPixels;

@@ -217,6 +217,33 @@ TEST_CASE("shaft culling gives the image of rendering with every obstacle as a c
     CHECK(a.stats.interpolatedPixels == b.stats.interpolatedPixels);
 }
 
+TEST_CASE("reusing first-level rays within a span saves rays and keeps the image", "[renderer]") {
+    // In the tangent mode the pipeline answers a first-level ray again without tracing while the
+    // pixel's point has moved less than that ray's distance bound (signed distances are
+    // 1-Lipschitz): the patterns and the first level of full evaluations come out the same, so
+    // the image may only move where a reused corner's approximate distance aims a probe
+    // differently.
+    Scene scene = sphereScene(48, makeSphereLevelSet(kSphereCenter, kSphereRadius, 0.01, 3.0));
+    RenderSettings reuse = settingsFor(Method::Aci);
+    RenderSettings fresh = reuse;
+    fresh.reuseFirstLevel = false;
+    RenderResult a = render(scene, reuse);
+    RenderResult b = render(scene, fresh);
+    Diff d = difference(a.color, b.color);
+    INFO("rays " << a.stats.shadowRays << " against " << b.stats.shadowRays << ", reused "
+                 << a.stats.reusedRays << "; mean " << d.mean8 << ", max " << d.max8);
+    CHECK(a.stats.reusedRays > 0);
+    CHECK(b.stats.reusedRays == 0);
+    CHECK(a.stats.shadowRays < b.stats.shadowRays);
+    CHECK(a.stats.viewingRaysWithShadowRays == b.stats.viewingRaysWithShadowRays);
+    CHECK(d.mean8 < 0.05);
+    CHECK(d.max8 < 3.0);
+    // Still independent of the thread count.
+    RenderSettings two = reuse;
+    two.threads = 2;
+    CHECK(render(scene, two).color.data == a.color.data);
+}
+
 TEST_CASE("a shaft contains every segment between its two boxes", "[renderer]") {
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> u(-2.0, 2.0), size(0.05, 1.0), t(0.0, 1.0);

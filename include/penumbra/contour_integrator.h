@@ -55,6 +55,14 @@ struct AciSettings {
     /// pieces whose tangents are unknown or inconsistent take the section 3.2 check and
     /// refinement. See docs/estimator.md.
     bool tangentContour = true;
+    /// Beyond the paper (tangent mode, for renderers): remember the first-level rays of earlier
+    /// evaluations and patterns, and answer one again without a ray while the receiver point
+    /// has moved less than that ray's distance bound (Clearance::bound: signed distances are
+    /// 1-Lipschitz, so a segment that stays d away from every surface stays clear when its start
+    /// moves by less than d, and one that goes d deep stays blocked). Off by default: results
+    /// then depend on what was evaluated before, so the caller calls forgetCorners() at
+    /// deterministic places (the renderer: at every span).
+    bool reuseCorners = false;
     /// Beyond the paper: integrate each checked piece X-Z-Y as a parabolic arc through its
     /// three points instead of two chords (no extra rays; see docs/estimator.md).
     bool curvedContour = true;
@@ -87,6 +95,7 @@ struct AciCounts {
     uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
     uint64_t secondLevelRays = 0;  ///< saddle centres, dichotomies, checks, refinements
     uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
+    uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
     uint64_t squaresRefined = 0;
     uint64_t restarts = 0;
     int maxDepth = 0;              ///< deepest quadtree refinement reached
@@ -96,6 +105,7 @@ struct AciCounts {
         firstLevelRays += o.firstLevelRays;
         secondLevelRays += o.secondLevelRays;
         cacheHits += o.cacheHits;
+        reusedRays += o.reusedRays;
         squaresRefined += o.squaresRefined;
         restarts += o.restarts;
         maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
@@ -123,12 +133,28 @@ public:
     Estimate evaluate(const Receiver& r, const RectLight& light, Occluder::Query& query);
 
     /// Only the first-level pattern (the (p+1)^2 corner rays), for shadow-pattern coherence.
-    /// Adds the rays to `counts`.
+    /// Adds the rays to `counts` (with reuseCorners, some corners may be answered by earlier
+    /// rays: counts.reusedRays).
     std::vector<uint8_t> pattern(const Receiver& r, const RectLight& light, Occluder::Query& query,
                                  AciCounts& counts);
 
+    /// Forgets the first-level rays kept for reuseCorners.
+    void forgetCorners() { mCorners.clear(); }
+
+    /// One first-level ray kept for reuseCorners (public for the implementation's helpers).
+    struct Corner {
+        Vec3 origin{0.0};
+        double bound = 0.0;  ///< Clearance::bound of the ray (0: cannot be reused)
+        float sample = 0.0f, clear = 0.0f;
+        float tangent[6] = {0, 0, 0, 0, -1, 0};
+    };
+
 private:
     struct Lattice;
+    std::vector<Corner> mCorners;  // (p+1)^2 for mCornerGrid and mCornerLight; empty: none
+    int mCornerGrid = 0;
+    RectLight mCornerLight;
+    Corner* reusableCorner(const RectLight& light, int grid, int i, int j);
     AciSettings mSettings;
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible

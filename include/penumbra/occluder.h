@@ -43,6 +43,12 @@ struct Clearance {
     double at = 0.0;
     Vec3 normal{0.0};
     int obstacle = -1;  ///< index (in the Occluder) of the obstacle it is measured to
+    /// A conservative bound, known more often than `distance`: when the segment is unblocked,
+    /// every obstacle surface (of the candidates) stays at least `bound` > 0 away from it; when
+    /// blocked, it goes at least -`bound` > 0 deep into an obstacle. 0 when nothing is known.
+    /// Signed distances are 1-Lipschitz, so moving the segment's start by less than |bound|
+    /// (its end fixed) cannot change the answer: the renderer reuses first-level rays on that.
+    double bound = 0.0;
     bool known() const { return std::isfinite(distance); }
 };
 

@@ -75,6 +75,10 @@ struct RenderSettings {
     bool shaftCulling = true;  ///< off: every obstacle is a candidate of every span
     bool coherence = true;     ///< off: ACI at every pixel of a span that has candidates
     bool adaptiveGrid = true;  ///< section 5's adaptive first-level density
+    /// Beyond the paper, tangent mode on receiver planes: answer a first-level ray again without
+    /// tracing while the pixel's point has moved less than the ray's distance bound
+    /// (AciSettings::reuseCorners), within each span.
+    bool reuseFirstLevel = true;
     int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
     /// Monte Carlo settings (samples, mc-adaptive's threshold, seed). `samples` 0 (the default
     /// here) takes defaultSamples(method); rayOffset is taken from `aci.rayOffset`, and each

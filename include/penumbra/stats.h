@@ -34,6 +34,7 @@ struct RenderStats {
     uint64_t firstLevelRays = 0;             ///< of which first-level rays (ACI and patterns)
     uint64_t secondLevelRays = 0;            ///< of which second-level rays (dichotomies, checks)
     uint64_t cacheHits = 0;                  ///< lattice samples reused inside ACI evaluations
+    uint64_t reusedRays = 0;                 ///< first-level rays answered by an earlier pixel's ray
     uint64_t spans = 0;                      ///< span-light pairs
     uint64_t culledSpans = 0;                ///< span-light pairs with no candidate obstacle
     uint64_t closedFormPixels = 0;           ///< pixel-light pairs shaded by the closed form
