@@ -285,24 +285,30 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
     const double fineBand = slot.grid->background();
     // The bound: the march samples every 0.8 |phi| (at least half a voxel) and phi is
     // 1-Lipschitz, so between samples it stays above 0.6 of the sampled minimum less half a
-    // voxel; a sampled value inside is as deep as it says (kept at 0.9 for interpolation).
-    auto bound = [&](double d, double voxel) { return d > 0.0 ? 0.6 * d - 0.5 * voxel : 0.9 * d; };
+    // voxel; a sampled value inside is as deep as it says (kept at 0.9 for interpolation). The
+    // companion's surface is the fine one rebuilt at coarser voxels, off by up to about half a
+    // coarse voxel: its distances are shrunk by that much before they prove anything.
+    auto coarseBound = [&](double d) {
+        return d > 0.0 ? std::max(0.0, 0.6 * d - coarseVoxel) : std::min(0.0, 0.9 * (d + 0.5 * coarseVoxel));
+    };
     if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * 3.0 * coarseVoxel) {
         Clearance unknown;  // beyond the companion's band: only the bound is known
-        unknown.bound = bound(c.distance > 0.0 ? 0.98 * coarse.background()
-                                               : -0.98 * 3.0 * coarseVoxel,
-                              coarseVoxel);
+        unknown.bound = coarseBound(c.distance > 0.0 ? 0.98 * coarse.background()
+                                                     : -0.98 * 3.0 * coarseVoxel);
         return unknown;
     }
-    c.bound = bound(c.distance, coarseVoxel);
+    c.bound = coarseBound(c.distance);
     if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
     const double w = 3.0 * coarseVoxel;
     Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir, std::max(t0, c.at - w),
                                std::min(t1, c.at + w));
     if (!(std::abs(f.distance) < 0.98 * fineBand)) return c;
-    // Outside the refined window only the companion's bound holds.
-    f.bound = std::min(c.bound, bound(f.distance, slot.grid->voxelSize()[0]));
-    if (f.distance < 0.0) f.bound = std::min(f.bound, 0.9 * f.distance);
+    if (f.distance > 0.0) {
+        // Outside the refined window only the companion's bound holds.
+        f.bound = std::min(c.bound, std::max(0.0, 0.6 * f.distance - 0.5 * slot.grid->voxelSize()[0]));
+    } else {
+        f.bound = 0.9 * f.distance;  // a fine sample inside: as deep as it says
+    }
     return f;
 }
 
