@@ -12,6 +12,7 @@ namespace {
 
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
+constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
@@ -252,7 +253,14 @@ struct ContourIntegrator::Lattice {
         const Guess g = estimate(lo, hi);
         const double e = std::clamp(g.e, double(lo), double(hi));
         Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
-        if (peek(at(hi)) != kBelowHorizon) {
+        if (peek(at(hi)) == kBelowHorizon) {
+            // On the horizon the contour is the (straight) line where the receiver's tangent
+            // plane cuts the light: its plane through M is that tangent plane.
+            const Vec3 w = glm::normalize(v.c - origin);
+            const Vec3 np = rec.normal - glm::dot(rec.normal, w) * w;
+            if (glm::length(np) > 1e-9) v.plane = glm::normalize(np);
+            v.obstacle = kHorizonContour;
+        } else {
             // The gradient of the end that placed the vertex; else the visible end's (outside
             // the surface it points at the nearest edge or face, also on a sharp silhouette),
             // else the hidden end's.
@@ -290,7 +298,11 @@ struct ContourIntegrator::Lattice {
         if (glm::dot(a.plane, a.plane) == 0.0 || glm::dot(b.plane, b.plane) == 0.0) return false;
         // Two obstacles' silhouettes meet somewhere between: their tangent lines say nothing
         // about where, so the piece is checked and refined as in section 3.2.
-        if (a.obstacle != b.obstacle) return false;
+        // (The horizon is a straight line: its meeting with one silhouette is a corner the
+        // tangent lines do describe.)
+        if (a.obstacle != b.obstacle && a.obstacle != kHorizonContour &&
+            b.obstacle != kHorizonContour)
+            return false;
         const Vec3 ta = glm::cross(a.plane, lightNormal), tb = glm::cross(b.plane, lightNormal);
         const double la = glm::length(ta), lb = glm::length(tb);
         if (la < 1e-6 || lb < 1e-6) return false;

@@ -318,7 +318,9 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                                Clearance* clearance) {
     ++mRays;
     if (clearance) *clearance = Clearance{};
-    bool clearanceKnown = true;
+    // The nearest obstacle whose distance is unknown is at least this far (its band): the
+    // smallest known distance is the segment's clearance when it is below that.
+    double unknownFloor = std::numeric_limits<double>::infinity();
     double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
     Vec3 clearanceNormal(0.0);
     int clearanceObstacle = -1;
@@ -378,7 +380,7 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
             if (near) {
                 touched = true;
                 if (!ci.known()) {
-                    clearanceKnown = false;
+                    unknownFloor = std::min(unknownFloor, ci.bound > 0.0 ? ci.bound : -1e300);
                 } else if (ci.distance < clearanceMin) {
                     clearanceMin = ci.distance;
                     clearanceAt = ci.at;
@@ -445,7 +447,7 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                                    : 0.0;
         }
     }
-    if (clearance && touched && clearanceKnown) {
+    if (clearance && touched && clearanceMin < unknownFloor) {
         clearance->distance = clearanceMin;
         clearance->at = clearanceAt;
         clearance->normal = clearanceNormal;

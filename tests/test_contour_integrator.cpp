@@ -10,6 +10,7 @@
 #include "exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
+#include "penumbra/monte_carlo.h"
 
 using namespace penumbra;
 
@@ -336,4 +337,38 @@ TEST_CASE("sphere level set against the exact shadow, within a voxel-derived tol
     CHECK(lit > 0);
     CHECK(penumbra > 10);
     CHECK(umbra > 0);
+}
+
+TEST_CASE("tangent mode: a contour ending on the horizon, against a converged reference",
+          "[aci][tangent]") {
+    // Receivers tilted so that their tangent plane cuts the light while the sphere hides part of
+    // it: contour vertices on the horizon take the horizon line as their tangent, and a piece
+    // from the sphere's silhouette to the horizon is a corner the tangent lines describe.
+    const RectLight light = testLight();
+    Occluder occ({AnalyticSphere{kSphereCenter, kSphereRadius}});
+    Occluder::Query query = occ.makeQuery();
+    ContourIntegrator tangent;
+    McSettings mc;
+    mc.samples = 1 << 16;  // 256 x 256 strata: converged far below the tolerance
+    mc.rayOffset = 1e-9;
+    int compared = 0;
+    double err = 0.0, unocc = 0.0;
+    for (int i = 0; i < 24; ++i) {
+        const double x = -1.2 + 2.4 * i / 23.0;
+        const Vec3 n = glm::normalize(Vec3(0.9, 0.3 * std::sin(3.0 * x), 0.35));
+        const Receiver r{Vec3(x, 0.3, 0.4), n};
+        const double u = unoccludedFormFactor(light, r);
+        if (!(u > 0.0)) continue;
+        const Estimate t = tangent.evaluate(r, light, query);
+        const Estimate ref = monteCarloReference(r, light, query, mc);
+        INFO("x = " << x << " tangent " << t.formFactor << " reference " << ref.formFactor
+                    << " unoccluded " << u << " rays " << t.counts.shadowRays());
+        CHECK(std::abs(t.formFactor - ref.formFactor) < 0.02 * u);
+        err += std::abs(t.formFactor - ref.formFactor);
+        unocc += u;
+        ++compared;
+    }
+    INFO("mean error " << err / unocc);
+    CHECK(compared >= 20);
+    CHECK(err / unocc < 0.005);
 }
