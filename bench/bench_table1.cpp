@@ -599,7 +599,7 @@ int main(int argc, char** argv) {
               << "set title sprintf('Table 1 scene at %d x %d: mean difference against a %d-ray "
                  "reference', "
               << args.sweepSize << ", " << args.sweepSize << ", " << 4 * args.refSamples << ")\n"
-              << "set key bottom left\n"
+              << "set key top right\n"
               << "plot ";
             for (size_t i = 0; i < series.size(); ++i) {
                 g << (i ? ", " : "") << quoted(data) << " index " << i
