@@ -6,6 +6,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <tbb/task_arena.h>
 
 #include <unistd.h>
 
@@ -30,9 +31,14 @@ void ensureOpenVdbInitialized() {
 
 const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
     std::call_once(mFar->once, [&] {
-        const openvdb::math::Transform::Ptr xform = mGrid->transform().copy();
-        xform->preScale(factor);
-        mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, 3.0f, xform.get());
+        // Isolated: while OpenVDB's parallel rebuild runs, this thread must not pick up another
+        // task of an enclosing parallel loop, which could ask for this very companion and
+        // wait on the flag this thread holds.
+        tbb::this_task_arena::isolate([&] {
+            const openvdb::math::Transform::Ptr xform = mGrid->transform().copy();
+            xform->preScale(factor);
+            mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, 3.0f, xform.get());
+        });
     });
     return *mFar->grid;
 }

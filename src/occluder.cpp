@@ -117,6 +117,11 @@ void Occluder::add(ObstacleShape shape) {
 
 Occluder::Query Occluder::makeQuery() const { return Query(*this); }
 
+void Occluder::prepareClearance() const {
+    for (const auto& far : mFar)
+        if (far) far->get();
+}
+
 // ---------------------------------------------------------------------------------------------
 // Occluder::Query
 

@@ -679,6 +679,11 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     if (settingsIn.height > 0) cam.height = settingsIn.height;
     const PinholeCamera camera(cam, scene.file);
     const Occluder occluder = scene.makeOccluder();
+    // The tangent mode's shadow rays ask for distances: build the far-field companions here,
+    // not inside the parallel loop.
+    if (settingsIn.aci.distanceGuided &&
+        (settingsIn.method == Method::Aci || settingsIn.method == Method::AciPixel))
+        occluder.prepareClearance();
 
     RenderSettings settings = settingsIn;
     if (!(settings.aci.rayOffset > 0.0)) settings.aci.rayOffset = automaticRayOffset(scene, occluder);

@@ -68,6 +68,11 @@ public:
     class Query;
     Query makeQuery() const;
 
+    /// Builds every level set's far-field companion now (they are otherwise built on the first
+    /// clearance query, by whichever thread asks first while the others wait): call it before
+    /// a parallel loop whose shadow rays ask for clearances.
+    void prepareClearance() const;
+
     /// A level set knows distances only within its narrow band. For the signed clearance of
     /// shadow rays, each level set gets a companion far-field distance grid (4x coarser
     /// voxels, an exterior band of 16 of them), built on first use by any thread.
