@@ -74,10 +74,11 @@ LevelSetInfo describe(const LevelSet& ls) {
 
 double sampleLevelSet(const LevelSet& ls, const Vec3& pointWS) {
     const openvdb::FloatGrid& grid = ls.grid();
-    openvdb::FloatGrid::ConstAccessor acc = grid.getConstAccessor();
-    openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler>
-        sampler(acc, grid.transform());
-    return sampler.wsSample(openvdb::Vec3d(pointWS.x, pointWS.y, pointWS.z));
+    // An unregistered accessor: the grid is read-only while it lives, and registering one would
+    // write the tree's accessor table, which other threads' accessors also write.
+    openvdb::FloatGrid::ConstUnsafeAccessor acc = grid.getConstUnsafeAccessor();
+    return openvdb::tools::BoxSampler::sample(
+        acc, grid.worldToIndex(openvdb::Vec3d(pointWS.x, pointWS.y, pointWS.z)));
 }
 
 namespace {
