@@ -134,7 +134,7 @@ struct ContourIntegrator::Lattice {
             kept = self.reusableCorner(light, p, q.a / s0, q.b / s0);
         }
         ContourIntegrator::Corner ray;
-        if (kept && kept->bound != 0.0 && glm::length(origin - kept->origin) < std::abs(kept->bound)) {
+        if (kept && kept->answers(origin)) {
             ray = *kept;
             ray.tangent[5] = 1.0f;  // its distances are the earlier point's
             ++counts.reusedRays;
@@ -720,7 +720,7 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
                 continue;
             }
             Corner* kept = reusableCorner(light, p, i, j);
-            if (kept->bound != 0.0 && glm::length(origin - kept->origin) < std::abs(kept->bound)) {
+            if (kept->answers(origin)) {
                 ++counts.reusedRays;
             } else {
                 ++counts.firstLevelRays;

@@ -8,6 +8,7 @@
 #include <tuple>
 
 #include "exact_shadow.h"
+#include "paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 #include "penumbra/monte_carlo.h"
@@ -17,13 +18,7 @@ using namespace penumbra;
 namespace {
 
 // The light of the paper-like test scene: 2 x 2 at height 4, emitting downwards.
-RectLight testLight() {
-    RectLight l;
-    l.corner = Vec3(-1, -1, 4);
-    l.edgeU = Vec3(0, 2, 0);
-    l.edgeV = Vec3(2, 0, 0);
-    return l;
-}
+RectLight testLight() { return test::paperLight(); }
 
 const Vec3 kUp(0, 0, 1);
 const Vec3 kSphereCenter(0.3, 0.2, 2.0);

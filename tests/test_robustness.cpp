@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "exact_shadow.h"
+#include "paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 
@@ -19,13 +20,7 @@ namespace {
 
 const Vec3 kUp(0, 0, 1);
 
-RectLight testLight() {
-    RectLight l;
-    l.corner = Vec3(-1, -1, 4);
-    l.edgeU = Vec3(0, 2, 0);
-    l.edgeV = Vec3(2, 0, 0);
-    return l;
-}
+RectLight testLight() { return test::paperLight(); }
 
 // The error bound of the estimator at its defaults, as in test_contour_integrator.cpp: a strip
 // one final dichotomy interval wide along the light's perimeter is 6.25% of its area.

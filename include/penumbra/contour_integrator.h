@@ -17,6 +17,7 @@
 /// Thread safety: a ContourIntegrator holds a scratch lattice; use one per thread.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -147,6 +148,10 @@ public:
         double bound = 0.0;  ///< Clearance::bound of the ray (0: cannot be reused)
         float sample = 0.0f, clear = 0.0f;
         float tangent[6] = {0, 0, 0, 0, -1, 0};
+        /// Whether this ray's answer holds for a ray from `from` to the same light point.
+        bool answers(const Vec3& from) const {
+            return bound != 0.0 && glm::length(from - origin) < std::abs(bound);
+        }
     };
 
 private:
