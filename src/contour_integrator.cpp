@@ -13,6 +13,7 @@ namespace {
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
+constexpr int kMaxCoverageRays = 48;    // coverage rays per evaluation before giving up
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
@@ -35,7 +36,7 @@ struct Vertex {
 // Traces one shadow ray from `origin` to `target` and records what it tells: the lattice's
 // sample value, the angular clearance and, in tangent mode, the gradient data and bound.
 ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
-                                   const AciSettings& settings) {
+                                   const AciSettings& settings, double want) {
     ContourIntegrator::Corner out;
     out.origin = origin;
     out.clear = std::numeric_limits<float>::quiet_NaN();
@@ -51,6 +52,7 @@ ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, c
     out.tangent[5] = 0.0f;
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / len, 0.01, 1.0)) : kVisible;
+    if (settings.coverage) query.certify(origin, target, hidden, want, out.cert);
     return out;
 }
 
@@ -80,6 +82,9 @@ struct ContourIntegrator::Lattice {
     Vec3 origin;
     Vec3 lightNormal;
     double epsWorld;  // world length of the final dichotomy interval (the strip width)
+    double want;      // coverage: the radius that covers the whole light from any of its points
+    double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
+    double unit;         // world length of one lattice unit (averaged over the two edges)
     AciCounts counts;
     Vec3 g{0.0};
     Mat3 dg{0.0};
@@ -90,7 +95,14 @@ struct ContourIntegrator::Lattice {
         origin = r.point + s.mSettings.rayOffset * r.normal;
         lightNormal = l.normal();
         epsWorld = (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;  // 2 units, averaged
+        // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
+        // level's square from one of its corners.
+        unit = 0.5 * (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;
+        want = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
         const size_t size = static_cast<size_t>(N + 1) * (N + 1);
+        if (s.mSettings.coverage && self.mCert.size() < size) self.mCert.resize(size);
+        self.mTraced.clear();
+        self.mMarked.clear();
         if (self.mStamp.size() < size) {
             self.mStamp.assign(size, 0);
             self.mSample.assign(size, 0.0f);
@@ -137,11 +149,12 @@ struct ContourIntegrator::Lattice {
         if (kept && kept->answers(origin)) {
             ray = *kept;
             ray.tangent[5] = 1.0f;  // its distances are the earlier point's
+            ray.cert = Certificate{};  // its disc is about the earlier point's segments
             ++counts.reusedRays;
         } else {
             (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
             if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
-            ray = traceRay(query, origin, target, self.mSettings);
+            ray = traceRay(query, origin, target, self.mSettings, want);
             if (kept) *kept = ray;
         }
         clear = ray.clear;
@@ -149,6 +162,11 @@ struct ContourIntegrator::Lattice {
             std::copy(ray.tangent, ray.tangent + kTangentFloats, &self.mNormal[kTangentFloats * idx]);
         }
         s = ray.sample;
+        if (self.mSettings.coverage) {
+            self.mCert[idx] = ray.cert;
+            if (ray.cert.radius > 0.0 || ray.cert.radiusOthers > 0.0)
+                self.mTraced.push_back(static_cast<uint32_t>(idx));
+        }
         return s;
     }
     bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
@@ -293,6 +311,7 @@ struct ContourIntegrator::Lattice {
         Vec3 k{0.0};
         double w = 1.0;
         bool straight = false;
+        bool probed = false;  // its weight was placed by a shoulder ray
     };
     bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc) {
         if (glm::dot(a.plane, a.plane) == 0.0 || glm::dot(b.plane, b.plane) == 0.0) return false;
@@ -347,6 +366,7 @@ struct ContourIntegrator::Lattice {
         if (sample(q, false) == kBelowHorizon) return false;
         const double lambda = newtonAlong(q, m, arc.k - m);
         if (!std::isfinite(lambda)) return false;
+        arc.probed = true;
         const double l = std::clamp(lambda, 0.0, 1.0);
         if (l <= 0.02) {
             arc.straight = true;
@@ -463,6 +483,199 @@ struct ContourIntegrator::Lattice {
         return glm::dot(edgeG(a - rec.point, b - rec.point), rec.normal) / (2.0 * kPi);
     }
 
+
+    // ----- Coverage (AciSettings::coverage) -----
+
+    // Form factor of the light's part inside the lattice square (x0, y0, s), for bounds.
+    double squareFormFactor(int x0, int y0, int s) const {
+        const Vec3 p0 = pointOf({x0, y0}), p1 = pointOf({x0 + s, y0});
+        const Vec3 p2 = pointOf({x0 + s, y0 + s}), p3 = pointOf({x0, y0 + s});
+        return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
+    }
+
+    // Height of a light point above the receiver's tangent plane.
+    double above(const Vec3& p) const { return glm::dot(p - rec.point, rec.normal); }
+
+    // Whether the part of the cell (lattice coordinates a0, b0, side `size`) above the horizon
+    // lies in one of the gathered discs; with `own` >= 0, a disc's radius that excludes that
+    // obstacle counts (Certificate::radiusOthers).
+    bool cellInDisc(double a0, double b0, double size, int own) const {
+        Vec3 pts[8];
+        int n = 0;
+        const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
+                           light.point((a0 + size) / N, (b0 + size) / N),
+                           light.point(a0 / N, (b0 + size) / N)};
+        double h[4];
+        for (int i = 0; i < 4; ++i) h[i] = above(q[i]);
+        for (int i = 0; i < 4; ++i) {
+            const int j = (i + 1) & 3;
+            if (h[i] > 0.0) pts[n++] = q[i];
+            if ((h[i] > 0.0) != (h[j] > 0.0)) pts[n++] = q[i] + (h[i] / (h[i] - h[j])) * (q[j] - q[i]);
+        }
+        if (n == 0) return true;  // below the horizon: hidden, no ray needed
+        for (const Disc& d : self.mDiscs) {
+            const double r2 = own >= 0 && d.obstacle == own ? std::max(d.r2, d.ro2) : d.r2;
+            bool all = r2 > 0.0;
+            for (int i = 0; i < n && all; ++i) {
+                const Vec3 e = pts[i] - d.c;
+                all = glm::dot(e, e) < r2;
+            }
+            if (all) return true;
+        }
+        return false;
+    }
+
+    // The obstacle of a gathered contour segment whose band (its width around it) holds the
+    // whole cell, -1 when none (or the segment's obstacle is unknown).
+    int bandOwner(const Vec3& centre, double halfDiag) const {
+        for (const Segment& g : self.mNearSegs) {
+            if (g.own < 0) continue;
+            const Vec3 d = g.b - g.a;
+            const double dd = glm::dot(d, d);
+            const double t = dd > 0.0 ? std::clamp(glm::dot(centre - g.a, d) / dd, 0.0, 1.0) : 0.0;
+            if (glm::length(g.a + t * d - centre) + halfDiag <= g.width) return g.own;
+        }
+        return -1;
+    }
+
+    // Visits every uncovered cell of side `minSize` in the cell (a0, b0, size): adds its form
+    // factor to `lost` and keeps in (ua, ub) the one farthest from the covered part (its centre's
+    // distance to the nearest disc that would prove it, in `best`).
+    void uncoveredCells(double a0, double b0, double size, double minSize, double& lost,
+                        double& best, double& ua, double& ub) const {
+        if (cellInDisc(a0, b0, size, -1)) return;
+        const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
+        const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
+                                                  light.point(a0 / N, b0 / N));
+        const int own = bandOwner(c, halfDiag);
+        if (own >= 0 && cellInDisc(a0, b0, size, own)) return;
+        if (size > minSize) {
+            const double h = 0.5 * size;
+            for (int q = 0; q < 4; ++q)
+                uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, lost, best, ua, ub);
+            return;
+        }
+        if (above(c) <= 0.0) return;
+        const int ownHere = bandOwner(c, 0.0);
+        double gap = std::numeric_limits<double>::infinity();
+        for (const Disc& d : self.mDiscs) {
+            const double r2 = ownHere >= 0 && d.obstacle == ownHere ? std::max(d.r2, d.ro2) : d.r2;
+            gap = std::min(gap, glm::length(c - d.c) - std::sqrt(r2));
+        }
+        lost += squareFormFactor(static_cast<int>(a0), static_cast<int>(b0), static_cast<int>(size));
+        if (gap > best) {
+            best = gap;
+            ua = a0;
+            ub = b0;
+        }
+    }
+
+    // Gathers the discs and contour segments that may matter for the leaf square (x0, y0, s).
+    void gatherNear(int x0, int y0, int s) {
+        const Vec3 centre = light.point((x0 + 0.5 * s) / N, (y0 + 0.5 * s) / N);
+        const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
+                                           glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
+        self.mDiscs.clear();
+        for (uint32_t idx : self.mTraced) {
+            const Certificate& c = self.mCert[idx];
+            const Vec3 p = pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))});
+            if (glm::length(p - centre) >= std::max(c.radius, c.radiusOthers) + half) continue;
+            self.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
+        }
+        self.mNearSegs.clear();
+        for (const Segment& g : self.mSegs) {
+            const Vec3 d = g.b - g.a;
+            const double dd = glm::dot(d, d);
+            const double t = dd > 0.0 ? std::clamp(glm::dot(centre - g.a, d) / dd, 0.0, 1.0) : 0.0;
+            if (glm::length(g.a + t * d - centre) < g.width + half) self.mNearSegs.push_back(g);
+        }
+    }
+
+    // The lattice point where coverage wants its next ray: the centre (or a corner not yet
+    // traced) of the uncovered cell of 2 units farthest from what discs and contour bands
+    // prove. False when every uncovered point is within coverageGap x epsilon (epsilon: the
+    // final dichotomy interval) of proven ground, so that no shadow or window holding a disc of
+    // that radius can hide there, or when `giveUp`; `lost` is then the form factor of what
+    // stays uncovered.
+    bool nextCoverageSample(LatticePoint& out, double& lost, bool giveUp) {
+        lost = 0.0;
+        double best = -1.0, ua = 0.0, ub = 0.0;
+        for (const Leaf& leaf : self.mLeaves) {
+            gatherNear(leaf.x0, leaf.y0, leaf.s);
+            uncoveredCells(leaf.x0, leaf.y0, leaf.s, 2.0, lost, best, ua, ub);
+        }
+        if (giveUp || best < self.mSettings.coverageGap * epsWorld) return false;
+        const int ia = static_cast<int>(ua), ib = static_cast<int>(ub);
+        const LatticePoint cand[5] = {{ia + 1, ib + 1}, {ia, ib}, {ia + 2, ib}, {ia + 2, ib + 2}, {ia, ib + 2}};
+        for (const LatticePoint& q : cand) {
+            if (self.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != self.mGeneration) {
+                out = q;
+                return true;
+            }
+        }
+        return false;  // every candidate traced: nothing finer to ask at this resolution
+    }
+
+    // Whether a traced coverage sample lies in the square (x0, y0, s), corners excluded, with
+    // another answer than the square's uniform one (visible: 1, hidden: 0; -1: any answer).
+    bool markedInside(int x0, int y0, int s, int uniform) const {
+        for (uint32_t idx : self.mMarked) {
+            const int a = static_cast<int>(idx % (N + 1)), b = static_cast<int>(idx / (N + 1));
+            if (a < x0 || a > x0 + s || b < y0 || b > y0 + s) continue;
+            if ((a == x0 || a == x0 + s) && (b == y0 || b == y0 + s)) continue;
+            if (uniform < 0 || (self.mSample[idx] == kVisible) != (uniform == 1)) return true;
+        }
+        return false;
+    }
+
+    // What the current contour says about a light point: visible (1) or hidden (0).
+    int predicted(LatticePoint q) const {
+        for (const Leaf& leaf : self.mLeaves) {
+            if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
+                continue;
+            if (leaf.type != 2) return leaf.type;
+            // A contour square: the side of the nearest segment (visible on the left in (u, v)).
+            const Vec3 p = pointOf(q);
+            double best = std::numeric_limits<double>::infinity();
+            int side = 1;
+            for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
+                const Segment& g = self.mSegs[i];
+                const Vec3 d = g.b - g.a;
+                const double dd = glm::dot(d, d);
+                const double t = dd > 0.0 ? std::clamp(glm::dot(p - g.a, d) / dd, 0.0, 1.0) : 0.0;
+                const double dist = glm::length(g.a + t * d - p);
+                if (dist < best) {
+                    best = dist;
+                    side = glm::dot(glm::cross(d, p - g.a), lightNormal) > 0.0 ? 1 : 0;
+                }
+            }
+            return side;
+        }
+        return 1;
+    }
+
+    // Splits the square into four like a refinement (section 3.2); false on an inconsistency.
+    bool split(int x0, int y0, int k, double thr, int depth, const bool v[4], const bool onBorder[4]) {
+        const int s = 2 << k;
+        const LatticePoint c[4] = {{x0, y0}, {x0 + s, y0}, {x0 + s, y0 + s}, {x0, y0 + s}};
+        counts.maxDepth = std::max(counts.maxDepth, depth + 1);
+        // New samples at the middle of each side: a side whose ends agree but whose middle
+        // differs means the neighbouring square was treated wrongly (unless the side is on
+        // the light's border): restart one level deeper.
+        for (int i = 0; i < 4; ++i) {
+            const int j = (i + 1) & 3;
+            if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i])
+                return false;
+        }
+        const int h = s / 2;
+        for (int sy = 0; sy < 2; ++sy)
+            for (int sx = 0; sx < 2; ++sx)
+                if (!square(x0 + sx * h, y0 + sy * h, k - 1, thr < 0.0 ? thr : 0.5 * thr,
+                            depth + 1))
+                    return false;
+        return true;
+    }
+
     // Processes the square with lower-left lattice corner (x0, y0) and side s = 2^(k+1).
     // thr < 0 asks for the threshold to be computed from the square's own contour.
     // Returns false on an inconsistency that needs the whole light one level deeper.
@@ -474,10 +687,17 @@ struct ContourIntegrator::Lattice {
         const int nVisible = v[0] + v[1] + v[2] + v[3];
         const bool onBorder[4] = {y0 == 0, x0 + s == N, y0 + s == N, x0 == 0};
 
-        if (nVisible == 0) return true;
-        if (nVisible == 4) {
-            for (int i = 0; i < 4; ++i)
-                if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
+        if (nVisible == 0 || nVisible == 4) {
+            // With coverage: a coverage sample inside that disagrees splits the square (a
+            // shadow or window touching no corner).
+            if (self.mSettings.coverage && k > 0 && markedInside(x0, y0, s, nVisible == 4)) {
+                ++counts.squaresSplitForCoverage;
+                return split(x0, y0, k, thr, depth, v, onBorder);
+            }
+            if (self.mSettings.coverage) self.mLeaves.push_back({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
+            if (nVisible == 4)
+                for (int i = 0; i < 4; ++i)
+                    if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
             return true;
         }
 
@@ -585,20 +805,53 @@ struct ContourIntegrator::Lattice {
 
         if (self.mSettings.refine && k > 0 && change > thr) {
             ++counts.squaresRefined;
-            counts.maxDepth = std::max(counts.maxDepth, depth + 1);
-            // New samples at the middle of each side: a side whose ends agree but whose middle
-            // differs means the neighbouring square was treated wrongly (unless the side is on
-            // the light's border): restart one level deeper.
-            for (int i = 0; i < 4; ++i) {
-                const int j = (i + 1) & 3;
-                if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i])
-                    return false;
+            return split(x0, y0, k, thr, depth, v, onBorder);
+        }
+
+        if (self.mSettings.coverage) {
+            if (k > 0 && markedInside(x0, y0, s, -1)) {
+                ++counts.squaresSplitForCoverage;
+                return split(x0, y0, k, thr, depth, v, onBorder);
             }
-            const int h = s / 2;
-            for (int sy = 0; sy < 2; ++sy)
-                for (int sx = 0; sx < 2; ++sx)
-                    if (!square(x0 + sx * h, y0 + sy * h, k - 1, 0.5 * thr, depth + 1)) return false;
-            return true;
+            // The contour as segments (each piece: its ends and its middle) with the obstacle
+            // it belongs to when both ends agree (the horizon belongs to none), and the band
+            // around it where only that obstacle's discs need to exclude the others.
+            const uint32_t seg0 = static_cast<uint32_t>(self.mSegs.size());
+            const double band = std::max(0.5 * s, 2.0) * unit;
+            for (int q = 0; q < nPieces; ++q) {
+                const Vertex& a = x[pieces[q].exitSide];
+                const Vertex& b = x[pieces[q].entrySide];
+                Vec3 mid = 0.5 * (a.c + b.c);
+                if (arcOk[q] && !arcs[q].straight) {
+                    const double w = arcs[q].w;
+                    mid = std::isfinite(w) ? (0.25 * a.c + 0.5 * w * arcs[q].k + 0.25 * b.c) / (0.5 + 0.5 * w)
+                                           : arcs[q].k;
+                } else if (!arcOk[q]) {
+                    mid = z[q].c;
+                }
+                int own = a.obstacle;
+                if (own == kHorizonContour) own = b.obstacle;
+                if (b.obstacle != own && b.obstacle != kHorizonContour) own = -1;
+                self.mSegs.push_back({a.c, mid, band, own});
+                self.mSegs.push_back({mid, b.c, band, own});
+            }
+            self.mLeaves.push_back({x0, y0, s, 2, seg0, static_cast<uint32_t>(self.mSegs.size())});
+            // What each piece's data leave open: the strip of the vertices' uncertainty, and
+            // for a tangent arc the part of its tangent triangle the arc may miss (two thirds
+            // without a shoulder ray, a quarter with one), for a checked piece half the change
+            // that the check measured.
+            for (int q = 0; q < nPieces; ++q) {
+                const Vertex& a = x[pieces[q].exitSide];
+                const Vertex& b = x[pieces[q].entrySide];
+                double e = 0.25 * stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
+                if (arcOk[q] && !arcs[q].straight) {
+                    const double tri = std::abs(edgeF(a.c, arcs[q].k) + edgeF(arcs[q].k, b.c) + edgeF(b.c, a.c));
+                    e += (arcs[q].probed ? 0.25 : 2.0 / 3.0) * tri;
+                } else if (!arcOk[q]) {
+                    e += 0.5 * std::abs(edgeF(a.c, z[q].c) + edgeF(z[q].c, b.c) - edgeF(a.c, b.c));
+                }
+                bound += e;
+            }
         }
 
         for (int q = 0; q < nPieces; ++q) {
@@ -641,10 +894,31 @@ struct ContourIntegrator::Lattice {
         return true;
     }
 
+    // Coverage: a ray to the light's centre; true when its disc covers the whole light (which
+    // is then wholly visible or wholly hidden, and integrated).
+    bool wholeLight() {
+        const LatticePoint centre{N / 2, N / 2};
+        const Vec3 pc = pointOf(centre);
+        for (const Vec3& q : light.polygon())
+            if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
+        const bool vis = visible(centre, true);
+        const Certificate& cert = self.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
+        for (const Vec3& q : light.polygon())
+            if (!(glm::length(q - pc) < cert.radius)) return false;
+        if (vis) {
+            const std::vector<Vec3> poly = light.polygon();
+            for (int i = 0; i < 4; ++i) emit(poly[i], poly[(i + 1) & 3]);
+        }
+        return true;
+    }
+
     // One pass over the light at restart level r; false on an inconsistency.
     bool pass(int r) {
         g = Vec3(0.0);
         dg = Mat3(0.0);
+        bound = 0.0;
+        self.mLeaves.clear();
+        self.mSegs.clear();
         const int k = n - r;
         const int s = 2 << k;
         const int squares = p << r;
@@ -671,10 +945,46 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     int n = std::max(0, mSettings.steps);
     while (n > 0 && (p << (n + 1)) > kMaxLatticeUnits) --n;
     Lattice lat(*this, r, light, query, p, n);
+    if (mSettings.coverage && lat.wholeLight()) {
+        // One ray whose disc covers the light decides it: all visible or all hidden.
+        const bool vis = mSample[static_cast<size_t>(lat.N / 2) * (lat.N + 1) + lat.N / 2] == kVisible;
+        est.pattern.assign(static_cast<size_t>(p + 1) * (p + 1), vis ? 1 : 0);
+        est.g = lat.g / (2.0 * kPi);
+        est.dg = lat.dg / (2.0 * kPi);
+        est.formFactor = glm::dot(est.g, r.normal);
+        for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
+        est.errorBound = 0.0;
+        est.counts = lat.counts;
+        return est;
+    }
     int level = 0;
-    while (!lat.pass(level)) {
-        ++lat.counts.restarts;
-        ++level;  // cannot exceed n: at k = 0 no square refines, so no inconsistency arises
+    int coverageRays = 0;
+    for (;;) {
+        if (!lat.pass(level)) {
+            ++lat.counts.restarts;
+            ++level;  // cannot exceed n: at k = 0 no square splits, so no inconsistency arises
+            continue;
+        }
+        if (!mSettings.coverage) break;
+        // Coverage: rays where no disc and no contour band proves the answer. One that
+        // contradicts the contour (a shadow or window the pass missed) makes the pass run again,
+        // splitting the squares it lies in; every ray is reused.
+        bool again = false;
+        double lost = 0.0;
+        LatticePoint q;
+        while (lat.nextCoverageSample(q, lost, coverageRays >= kMaxCoverageRays)) {
+            ++coverageRays;
+            const bool vis = lat.visible(q);
+            if ((vis ? 1 : 0) != lat.predicted(q)) {
+                mMarked.push_back(static_cast<uint32_t>(static_cast<size_t>(q.b) * (lat.N + 1) + q.a));
+                again = true;
+                break;
+            }
+        }
+        if (!again) {
+            lat.bound += lost;
+            break;
+        }
     }
     est.pattern.resize(static_cast<size_t>(p + 1) * (p + 1));
     const int s0 = 2 << n;
@@ -687,6 +997,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     est.dg = lat.dg / (2.0 * kPi);
     est.formFactor = glm::dot(est.g, r.normal);
     for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
+    if (mSettings.coverage) est.errorBound = lat.bound;
     est.counts = lat.counts;
     return est;
 }
@@ -724,7 +1035,7 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
                 ++counts.reusedRays;
             } else {
                 ++counts.firstLevelRays;
-                *kept = traceRay(query, origin, target, mSettings);
+                *kept = traceRay(query, origin, target, mSettings, 0.0);
             }
             o = kept->sample == kVisible;
         }
@@ -752,6 +1063,7 @@ void applyAciMode(AciSettings& s, AciMode mode) {
     s.midlineCheck = beyondPaper;
     s.distanceGuided = mode == AciMode::Tangent;
     s.tangentContour = mode == AciMode::Tangent;
+    s.coverage = mode == AciMode::Tangent;
     s.guidedProbes = mode == AciMode::Tangent ? 1 : 0;
 }
 
@@ -761,7 +1073,7 @@ AciMode aciModeOf(const AciSettings& s) {
         applyAciMode(t, m);
         if (t.curvedContour == s.curvedContour && t.midlineCheck == s.midlineCheck &&
             t.distanceGuided == s.distanceGuided && t.tangentContour == s.tangentContour &&
-            t.guidedProbes == s.guidedProbes)
+            t.guidedProbes == s.guidedProbes && t.coverage == s.coverage)
             return m;
     }
     return AciMode::Tangent;

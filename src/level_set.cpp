@@ -37,7 +37,7 @@ const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
         tbb::this_task_arena::isolate([&] {
             const openvdb::math::Transform::Ptr xform = mGrid->transform().copy();
             xform->preScale(factor);
-            mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, 3.0f, xform.get());
+            mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, band, xform.get());
         });
     });
     return *mFar->grid;

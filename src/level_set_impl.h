@@ -28,7 +28,8 @@ class LevelSet {
     double voxelSize() const { return mVoxelSize; }
 
     /// The far-field companion used for shadow-ray clearance (occluder.cpp): the same surface
-    /// rebuilt at `factor` times coarser voxels with an exterior band of `band` of them. Built
+    /// rebuilt at `factor` times coarser voxels with exterior and interior bands of `band` of them
+    /// (the interior one lets a blocked shadow ray prove how deep it goes). Built
     /// on first use (thread-safe) and kept with the level set, so that every Occluder, render
     /// and batch job over it shares one.
     const openvdb::FloatGrid& farField(double factor, float band) const;

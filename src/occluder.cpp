@@ -79,7 +79,31 @@ bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, doubl
 struct Occluder::FarField {
     explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
     const openvdb::FloatGrid& get() const { return levelSet->farField(kFarVoxelFactor, kFarBand); }
+
+    /// How far the companion's values may stray from the fine grid's near the surface,
+    /// measured once at every active fine voxel (plus half a fine voxel for the points between
+    /// them): certificates shrink companion distances by it. A feature thinner than a coarse
+    /// voxel, which the companion loses, shows up here as a large error, and certificates near
+    /// the obstacle then prove less rather than something false.
+    double error() const {
+        std::call_once(errorOnce, [&] {
+            const openvdb::FloatGrid& fine = levelSet->grid();
+            const openvdb::FloatGrid& coarse = get();
+            auto acc = coarse.getConstAccessor();
+            double worst = 0.0;
+            for (auto it = fine.cbeginValueOn(); it; ++it) {
+                const openvdb::Vec3d w = fine.indexToWorld(it.getCoord());
+                const double vc = openvdb::tools::BoxSampler::sample(acc, coarse.worldToIndex(w));
+                worst = std::max(worst, std::abs(vc - double(*it)));
+            }
+            errorValue = worst + 0.5 * fine.voxelSize()[0];
+        });
+        return errorValue;
+    }
+
     LevelSetPtr levelSet;
+    mutable std::once_flag errorOnce;
+    mutable double errorValue = 0.0;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -119,7 +143,7 @@ Occluder::Query Occluder::makeQuery() const { return Query(*this); }
 
 void Occluder::prepareClearance() const {
     for (const auto& far : mFar)
-        if (far) far->get();
+        if (far) far->error();  // builds the companion too
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -296,10 +320,10 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
     auto coarseBound = [&](double d) {
         return d > 0.0 ? std::max(0.0, 0.6 * d - coarseVoxel) : std::min(0.0, 0.9 * (d + 0.5 * coarseVoxel));
     };
-    if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * 3.0 * coarseVoxel) {
+    if (c.distance >= 0.98 * coarse.background() || c.distance <= -0.98 * coarse.background()) {
         Clearance unknown;  // beyond the companion's band: only the bound is known
         unknown.bound = coarseBound(c.distance > 0.0 ? 0.98 * coarse.background()
-                                                     : -0.98 * 3.0 * coarseVoxel);
+                                                     : -0.98 * coarse.background());
         return unknown;
     }
     c.bound = coarseBound(c.distance);
@@ -459,6 +483,236 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
         clearance->obstacle = clearanceObstacle;
     }
     return hit;
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Certificates
+
+namespace {
+
+/// Closest distance between the segment from + t v, t in [0, 1], and the point c.
+double segmentPointDistance(const Vec3& from, const Vec3& v, const Vec3& c) {
+    const double vv = glm::dot(v, v);
+    const double t = vv > 0.0 ? std::clamp(glm::dot(c - from, v) / vv, 0.0, 1.0) : 0.0;
+    return glm::length(from + t * v - c);
+}
+
+/// Signed certified radius against a sphere: min over t in (0, 1] of (|M + t v - c| - R) / t,
+/// positive for a clear segment (its radius), negative for one that enters (minus the depth
+/// radius). With s = 1/t this is min over s >= 1 of H(s) = |s A + v| - R s (A = M - c), a convex
+/// function whose minimum is where s A + v makes the angle acos(R / |A|) with A.
+double sphereRadius(const AnalyticSphere& sp, const Vec3& m, const Vec3& v) {
+    const Vec3 a = m - sp.center;
+    const double la = glm::length(a);
+    if (!(la > sp.radius)) return -1e300;  // starts inside: every segment from M is blocked
+    const Vec3 ah = a / la;
+    const double vPar = glm::dot(v, ah);
+    const double vPerp = glm::length(v - vPar * ah);
+    const double cot = sp.radius / std::sqrt((la - sp.radius) * (la + sp.radius));
+    const double s = std::max(1.0, (vPerp * cot - vPar) / la);
+    return glm::length(s * a + v) - sp.radius * s;
+}
+
+/// The same for an axis-aligned box, whose signed distance is convex: t -> phi(M + t v) / t is
+/// then unimodal on (0, 1], and a golden-section search on it finds its minimum.
+double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
+    const double d0 = boxDistance(box, m, nullptr);
+    if (d0 <= 0.0) return -1e300;
+    auto h = [&](double t) { return boxDistance(box, m + t * v, nullptr) / t; };
+    constexpr double kInvPhi = 0.6180339887498949;
+    double a = 0.0, z = 1.0;
+    double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
+    double f1 = h(m1), f2 = h(m2);
+    for (int i = 0; i < 64 && z - a > 1e-12; ++i) {
+        if (f1 < f2) {
+            z = m2;
+            m2 = m1;
+            f2 = f1;
+            m1 = z - kInvPhi * (z - a);
+            f1 = h(m1);
+        } else {
+            a = m1;
+            m1 = m2;
+            f1 = f2;
+            m2 = a + kInvPhi * (z - a);
+            f2 = h(m2);
+        }
+    }
+    double best = std::min({f1, f2, h(1.0)});
+    // The search stops on a bracket of 1e-12: shave the value by what t -> phi / t can drop
+    // inside it (its slope is at most (|v| + |phi|) / t^2).
+    const double tb = std::max(a, 1e-6);
+    best -= 1e-12 * (glm::length(v) + std::abs(best) * tb) / (tb * tb) + 1e-12;
+    return best;
+}
+
+/// Signed distance from p to an axis-aligned box (outside positive), no gradient.
+double boxSdf(const Box3& b, const Vec3& p) {
+    AnalyticBox x;
+    x.lo = b.lo;
+    x.hi = b.hi;
+    return boxDistance(x, p, nullptr);
+}
+
+}  // namespace
+
+/// Signed certified radius against one level set, up to `want` (see Certificate). Distances come
+/// from the obstacle's bounds (exact lower bound outside them), its far-field companion (values
+/// within a coarse voxel of the fine surface's distance) and, next to the surface, the fine grid.
+/// A cone march: the segment's cone of radius rho at the light is proven free while balls of
+/// the bounded distance around points of the segment contain its cross-sections, and rho shrinks
+/// (at least halving) when a ball is too small. A segment that goes inside is then sampled for
+/// its depth.
+static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
+                             double coarseError, const Box3& bounds, const Vec3& m, const Vec3& v,
+                             double want, bool blocked) {
+    const double length = glm::length(v);
+    const double hc = coarseError;
+    const double bandC = 0.98 * double(coarse.background());
+    const double hf = slot.grid->voxelSize()[0];
+    const double bandF = 0.98 * double(slot.grid->background());
+    if (slot.farGrid != &coarse) {
+        slot.farGrid = &coarse;
+        slot.farAccessor =
+            std::make_unique<openvdb::FloatGrid::ConstAccessor>(coarse.getConstAccessor());
+    }
+    auto sample = [](const openvdb::FloatGrid& g, auto& acc, const Vec3& p) {
+        return double(openvdb::tools::BoxSampler::sample(
+            acc, g.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z))));
+    };
+    // Bounds on the fine surface's signed distance at p: lo <= phi <= hi. `need` is what the
+    // caller would like lo to reach; the companion is not sampled when the box proves it.
+    struct Range {
+        double lo, hi;
+    };
+    auto range = [&](const Vec3& p, double need) -> Range {
+        const double dBox = boxSdf(bounds, p);
+        // Far from the bounds the box says as much as the companion could (the band ends there).
+        if (dBox >= std::min(need, bandC) && dBox > 0.0) return {dBox, 1e300};
+        const double vc = sample(coarse, *slot.farAccessor, p);
+        if (vc >= bandC) return {std::max(dBox, bandC - hc), 1e300};
+        if (vc <= -bandC) return {-1e300, -(bandC - hc)};
+        if (std::abs(vc) > bandF + 2.0 * hc) return {std::max(dBox, vc - hc), vc + hc};
+        const double vf = sample(*slot.grid, slot.accessor, p);
+        // Beyond the fine band the surface is at least the band away (inactive values are the
+        // band's width, with the sign of the side).
+        if (vf >= bandF) return {std::max({dBox, vc - hc, bandF}), vc + hc};
+        if (vf <= -bandF) return {vc - hc, std::min(vc + hc, -bandF)};
+        // Trilinear values of a distance grid: within half a voxel, gradient up to ~1.2.
+        return {vf > 0.0 ? vf / 1.25 - 0.5 * hf : vf * 1.25 - 0.5 * hf,
+                vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25 + 0.5 * hf};
+    };
+
+    // Clear part: the cone march.
+    const double rhoMin = want / 256.0;
+    double rho = want, t = 0.0;
+    bool inside = false;
+    for (int it = 0; it < 400; ++it) {
+        const Vec3 p = m + t * v;
+        const Range r = range(p, 1.25 * rho * t + 1e-12);
+        if (r.lo <= 0.0) {
+            inside = blocked;
+            break;
+        }
+        if (r.lo < 1.25 * rho * t) {
+            // Too close for this cone to step on by at least a fifth of the ball: narrow it.
+            rho = 0.7 * r.lo / t;
+            if (rho < rhoMin) {  // grazing: nothing worth proving unless it goes in
+                inside = blocked;
+                break;
+            }
+        }
+        const double next = (r.lo + length * t) / (length + rho);
+        if (next >= 1.0) return rho;
+        t = next;
+    }
+    if (!inside) return 0.0;
+    // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
+    // the largest -hi / t over points inside.
+    double depth = 0.0;
+    bool wasInside = false;
+    for (int it = 0; it < 400 && t <= 1.0; ++it) {
+        const Vec3 p = m + t * v;
+        const Range r = range(p, 0.0);
+        if (r.hi < 0.0) {
+            depth = std::max(depth, -r.hi / std::max(t, 1e-12));
+            wasInside = true;
+        } else if (wasInside && r.lo > 0.0) {
+            break;  // out again: later entries are other chords, not needed for a bound
+        }
+        const double mag = std::min(std::abs(r.hi), std::abs(r.lo));
+        t += std::max(0.5 * (std::isfinite(mag) && mag < 1e299 ? mag : hc), 0.5 * hf) / length;
+    }
+    return -depth;
+}
+
+void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double want,
+                              Certificate& out) {
+    out = Certificate{};
+    const Vec3 v = to - from;
+    if (!(want > 0.0) || !(glm::dot(v, v) > 0.0)) return;
+    // Per obstacle: the signed radius (> 0 clear, < 0 inside), capped at +-want.
+    double clearMin = want, clearSecond = want;
+    int clearArg = -1;
+    double deepMax = 0.0, deepSecond = 0.0;
+    int deepArg = -1;
+    const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mCandidates ? (*mCandidates)[k] : k;
+        const Box3& bounds = mOccluder->bounds(i);
+        if (bounds.empty()) continue;
+        // Quick bound: the distance from the segment to the bounds' circumscribed sphere
+        // (t <= 1, so it is also a bound on phi / t).
+        const Vec3 centre = 0.5 * (bounds.lo + bounds.hi);
+        const double far =
+            segmentPointDistance(from, v, centre) - 0.5 * glm::length(bounds.hi - bounds.lo);
+        double r;
+        if (far >= want) {
+            r = want;
+        } else {
+            const ObstacleShape& shape = mOccluder->shape(i);
+            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
+                r = sphereRadius(*sphere, from, v);
+            } else if (const auto* box = std::get_if<AnalyticBox>(&shape)) {
+                r = boxRadius(*box, from, v);
+            } else {
+                r = mImpl->levelSets[i]
+                        ? levelSetRadius(*mImpl->levelSets[i], mOccluder->mFar[i]->get(),
+                                         mOccluder->mFar[i]->error(), bounds,
+                                         from, v, want, blocked)
+                        : want;
+            }
+            r = std::clamp(r, -want, want);
+        }
+        if (r >= 0.0) {
+            if (r < clearMin) {
+                clearSecond = clearMin;
+                clearMin = r;
+                clearArg = static_cast<int>(i);
+            } else {
+                clearSecond = std::min(clearSecond, r);
+            }
+        } else if (-r > deepMax) {
+            deepSecond = deepMax;
+            deepMax = -r;
+            deepArg = static_cast<int>(i);
+        } else {
+            deepSecond = std::max(deepSecond, -r);
+        }
+    }
+    if (blocked) {
+        // One obstacle provably deep is enough; the others must stay clear for radiusOthers.
+        if (deepArg < 0) return;
+        out.radius = deepMax;
+        out.obstacle = deepArg;
+        out.radiusOthers = deepSecond > 0.0 ? 0.0 : clearMin;
+    } else {
+        if (deepArg >= 0) return;  // bounds disagree with the answer: prove nothing
+        out.radius = clearMin;
+        out.obstacle = clearArg;
+        out.radiusOthers = clearSecond;
+    }
 }
 
 }  // namespace penumbra

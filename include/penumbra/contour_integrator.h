@@ -19,6 +19,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -71,6 +72,19 @@ struct AciSettings {
     /// midline rather than on a random diagonal, which meets a contour near a side close to
     /// one end of its chord and so misses its bulge.
     bool midlineCheck = true;
+    /// Beyond the paper (tangent mode): certified coverage. Every shadow ray also returns a
+    /// Certificate (occluder.h): a disc on the light within which every point has its answer.
+    /// A square may be closed only when discs cover it (a square with a contour: discs that
+    /// exclude every obstacle but the contour's own near the contour, full discs farther away);
+    /// otherwise it is split like a refined square, so any shadow or window that holds a disc of
+    /// a few lattice units is found even when it touches no first-level corner. A point whose
+    /// first ray's disc covers the whole light needs that one ray. See docs/estimator.md.
+    bool coverage = true;
+    /// With coverage: rays go to uncovered parts of the light until every uncovered point is
+    /// within this many final dichotomy intervals (epsilon) of a disc or contour band, so any
+    /// shadow or window that holds a disc of that radius is found. Smaller finds smaller
+    /// features for more rays; 4 is 1/8 of a first-level square's side at the defaults.
+    double coverageGap = 4.0;
     /// When set, every traced shadow ray's target is appended (tests use it to prove that no
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;
@@ -98,6 +112,7 @@ struct AciCounts {
     uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
     uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
     uint64_t squaresRefined = 0;
+    uint64_t squaresSplitForCoverage = 0;  ///< splits because discs did not cover a square
     uint64_t restarts = 0;
     int maxDepth = 0;              ///< deepest quadtree refinement reached
 
@@ -108,6 +123,7 @@ struct AciCounts {
         cacheHits += o.cacheHits;
         reusedRays += o.reusedRays;
         squaresRefined += o.squaresRefined;
+        squaresSplitForCoverage += o.squaresSplitForCoverage;
         restarts += o.restarts;
         maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
     }
@@ -119,6 +135,11 @@ struct Estimate {
     Vec3 g{0.0};          ///< F = g . n (eq. 5)
     Mat3 dg{0.0};         ///< dg[k] = d g / d M_k with n fixed
     Vec3 gradient{0.0};   ///< dF/dM = dg^T n
+    /// An estimate of an upper bound on |F - F_exact|: the form factor of what the evaluation
+    /// left uncovered (proven by certificates: none of it is known), plus, per contour piece,
+    /// the part of the light between the integrated curve and the other curves its data allow
+    /// (docs/estimator.md). NaN when the mode gives none (paper, arcs).
+    double errorBound = std::numeric_limits<double>::quiet_NaN();
     AciCounts counts;
     /// Visibility of the first-level grid corners, row-major over (p+1) x (p+1): 1 visible,
     /// 0 hidden (below the horizon counts as hidden). Used for shadow-pattern coherence.
@@ -148,6 +169,7 @@ public:
         double bound = 0.0;  ///< Clearance::bound of the ray (0: cannot be reused)
         float sample = 0.0f, clear = 0.0f;
         float tangent[6] = {0, 0, 0, 0, -1, 0};
+        Certificate cert;  ///< with AciSettings::coverage
         /// Whether this ray's answer holds for a ray from `from` to the same light point.
         bool answers(const Vec3& from) const {
             return bound != 0.0 && glm::length(from - origin) < std::abs(bound);
@@ -166,6 +188,29 @@ private:
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
     std::vector<float> mNormal;    // tangentContour: x, y, z of the distance gradient at the
                                    // ray's closest approach (0 unknown)
+    std::vector<Certificate> mCert;  // coverage: each sample's certificate
+    struct Disc {
+        Vec3 c;        // centre on the light
+        double r2;     // squared radius of the full certificate
+        double ro2;    // squared radius that excludes every obstacle but `obstacle`
+        int obstacle;  // Certificate::obstacle
+    };
+    struct Segment {  // a piece of located contour and the band around it
+        Vec3 a, b;
+        double width;
+        int own;  // its obstacle, -1 unknown or mixed
+    };
+    struct Leaf {  // a square closed by the last pass
+        int x0, y0, s;
+        int type;  // 0 hidden, 1 visible, 2 contour (segments seg0 .. seg1)
+        uint32_t seg0, seg1;
+    };
+    std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
+    std::vector<Segment> mSegs;      // coverage: the last pass's contour segments
+    std::vector<Segment> mNearSegs;  // coverage scratch: segments near one leaf
+    std::vector<Leaf> mLeaves;       // coverage: the last pass's leaves
+    std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
+    std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
     uint32_t mGeneration = 0;
 };
 

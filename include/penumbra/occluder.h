@@ -52,6 +52,23 @@ struct Clearance {
     bool known() const { return std::isfinite(distance); }
 };
 
+/// A visibility certificate for one shadow segment from M to a light point Q: every segment
+/// from M to a point Q' with |Q' - Q| < radius has the same answer (blocked or not) as M to Q.
+/// For a segment M + t (Q - M), t in [0, 1], that stays clear of an obstacle with signed distance
+/// phi(t) > 0, moving Q by d moves the point at fraction t by t d, so (distances being
+/// 1-Lipschitz) min_t phi(t) / t is such a radius; for a segment that goes depth delta inside
+/// an obstacle at fraction t, delta / t is. Computed from lower bounds on distances and on
+/// depths (exact for analytic shapes), and only up to the radius the caller asks for.
+struct Certificate {
+    double radius = 0.0;  ///< >= 0; 0 proves nothing beyond the segment itself
+    /// A clear segment: the obstacle that limits `radius`; a blocked one: the obstacle whose
+    /// depth proves it. -1 when no obstacle is near.
+    int obstacle = -1;
+    /// The radius within which no obstacle but `obstacle` meets any segment from M (0 when
+    /// nothing is proven; equal to the asked-for radius when no other obstacle is near).
+    double radiusOthers = 0.0;
+};
+
 class Occluder {
 public:
     Occluder() = default;
@@ -104,6 +121,13 @@ public:
     /// it crosses (the smallest over them; unknown if any of them cannot tell). Level sets are
     /// sphere-traced along the segment for it, which costs about one more march.
     bool occluded(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance);
+
+    /// The certificate of the segment from `from` to `to`, whose answer `blocked` the caller
+    /// has just obtained from occluded(). Radii are computed up to `want` (a larger radius is
+    /// reported as `want`): ask for what would cover the region of interest, e.g. the light.
+    /// Costs a march over the obstacles' far-field companions (prepareClearance() builds them);
+    /// not counted as a shadow ray.
+    void certify(const Vec3& from, const Vec3& to, bool blocked, double want, Certificate& out);
 
     /// Restricts the following queries to the obstacles listed (indices into the Occluder), e.g.
     /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its
