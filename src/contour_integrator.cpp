@@ -14,6 +14,7 @@ constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
 constexpr int kMaxCoverageRays = 48;    // coverage rays per evaluation before giving up
+constexpr int kMaxRepasses = 16;        // coverage passes at one level after the first
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
@@ -52,7 +53,7 @@ ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, c
     out.tangent[5] = 0.0f;
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / len, 0.01, 1.0)) : kVisible;
-    if (settings.coverage) query.certify(origin, target, hidden, want, out.cert);
+    if (settings.coverage && want > 0.0) query.certify(origin, target, hidden, tHit, want, out.cert);
     return out;
 }
 
@@ -85,6 +86,10 @@ struct ContourIntegrator::Lattice {
     double want;      // coverage: the radius that covers the whole light from any of its points
     double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
     double unit;         // world length of one lattice unit (averaged over the two edges)
+    size_t mScanned = 0;  // coverage: traced rays already in self.mUncovered (0: scan anew)
+    bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
+    bool remark = false;       // coverage: the pass marked new samples and must run again
+    int passLevel = 0;         // the restart level of the current pass
     AciCounts counts;
     Vec3 g{0.0};
     Mat3 dg{0.0};
@@ -98,7 +103,8 @@ struct ContourIntegrator::Lattice {
         // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
         // level's square from one of its corners.
         unit = 0.5 * (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;
-        want = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
+        // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
+        want = 0.51 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
         const size_t size = static_cast<size_t>(N + 1) * (N + 1);
         if (s.mSettings.coverage && self.mCert.size() < size) self.mCert.resize(size);
         self.mTraced.clear();
@@ -154,7 +160,10 @@ struct ContourIntegrator::Lattice {
         } else {
             (firstLevel ? counts.firstLevelRays : counts.secondLevelRays)++;
             if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
-            ray = traceRay(query, origin, target, self.mSettings, want);
+            // Certificates on the rays whose discs cover ground: first-level corners and
+            // coverage rays (dichotomy rays lie next to the contour, where discs are tiny).
+            ray = traceRay(query, origin, target, self.mSettings,
+                           firstLevel || certifyNext ? want : 0.0);
             if (kept) *kept = ray;
         }
         clear = ray.clear;
@@ -538,36 +547,50 @@ struct ContourIntegrator::Lattice {
         return -1;
     }
 
-    // Visits every uncovered cell of side `minSize` in the cell (a0, b0, size): adds its form
-    // factor to `lost` and keeps in (ua, ub) the one farthest from the covered part (its centre's
-    // distance to the nearest disc that would prove it, in `best`).
-    void uncoveredCells(double a0, double b0, double size, double minSize, double& lost,
-                        double& best, double& ua, double& ub) const {
+    // Collects every uncovered cell of side `minSize` in the cell (a0, b0, size) into
+    // self.mUncovered, with its centre's distance to the nearest disc that would prove it.
+    // `leafOwn` >= 0: the cell lies in a contour square whose pieces all belong to that
+    // obstacle (the square is within its own contour's band).
+    void uncoveredCells(double a0, double b0, double size, double minSize, int leafOwn) const {
         if (cellInDisc(a0, b0, size, -1)) return;
+        (void)leafOwn;
         const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
-        const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
-                                                  light.point(a0 / N, b0 / N));
-        const int own = bandOwner(c, halfDiag);
-        if (own >= 0 && cellInDisc(a0, b0, size, own)) return;
+        if (!self.mNearSegs.empty()) {
+            const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
+                                                      light.point(a0 / N, b0 / N));
+            const int own = bandOwner(c, halfDiag);
+            if (own >= 0 && cellInDisc(a0, b0, size, own)) return;
+        }
         if (size > minSize) {
             const double h = 0.5 * size;
             for (int q = 0; q < 4; ++q)
-                uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, lost, best, ua, ub);
+                uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, leafOwn);
             return;
         }
         if (above(c) <= 0.0) return;
-        const int ownHere = bandOwner(c, 0.0);
-        double gap = std::numeric_limits<double>::infinity();
-        for (const Disc& d : self.mDiscs) {
-            const double r2 = ownHere >= 0 && d.obstacle == ownHere ? std::max(d.r2, d.ro2) : d.r2;
-            gap = std::min(gap, glm::length(c - d.c) - std::sqrt(r2));
+        Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), bandOwner(c, 0.0), c};
+        for (const Disc& d : self.mDiscs) gapTo(u, d);
+        self.mUncovered.push_back(u);
+    }
+
+    // Narrows an uncovered cell's distance to proven ground by one disc.
+    static void gapTo(Uncovered& u, const Disc& d) {
+        const double r2 = u.own >= 0 && d.obstacle == u.own ? std::max(d.r2, d.ro2) : d.r2;
+        u.gap = std::min(u.gap, glm::length(u.centre - d.c) - std::sqrt(r2));
+    }
+
+    // Form factor of the uncovered cells (the elementary form factor at each centre).
+    double uncoveredFormFactor() const {
+        const double area = light.area() / (double(N) * N);
+        double sum = 0.0;
+        for (const Uncovered& u : self.mUncovered) {
+            const Vec3 d = u.centre - rec.point;
+            const double r2 = glm::dot(d, d);
+            const double cosR = glm::dot(d, rec.normal) / std::sqrt(r2);
+            const double cosL = -glm::dot(d, lightNormal) / std::sqrt(r2);
+            sum += std::max(0.0, cosR) * std::abs(cosL) / (kPi * r2) * area * u.size * u.size;
         }
-        lost += squareFormFactor(static_cast<int>(a0), static_cast<int>(b0), static_cast<int>(size));
-        if (gap > best) {
-            best = gap;
-            ua = a0;
-            ub = b0;
-        }
+        return sum;
     }
 
     // Gathers the discs and contour segments that may matter for the leaf square (x0, y0, s).
@@ -595,18 +618,50 @@ struct ContourIntegrator::Lattice {
     // traced) of the uncovered cell of 2 units farthest from what discs and contour bands
     // prove. False when every uncovered point is within coverageGap x epsilon (epsilon: the
     // final dichotomy interval) of proven ground, so that no shadow or window holding a disc of
-    // that radius can hide there, or when `giveUp`; `lost` is then the form factor of what
-    // stays uncovered.
-    bool nextCoverageSample(LatticePoint& out, double& lost, bool giveUp) {
-        lost = 0.0;
-        double best = -1.0, ua = 0.0, ub = 0.0;
-        for (const Leaf& leaf : self.mLeaves) {
-            gatherNear(leaf.x0, leaf.y0, leaf.s);
-            uncoveredCells(leaf.x0, leaf.y0, leaf.s, 2.0, lost, best, ua, ub);
+    // that radius can hide there, or when `giveUp` (uncoveredFormFactor() then tells what stays
+    // uncovered). The scan of a pass's leaves is updated incrementally as rays are added.
+    bool nextCoverageSample(LatticePoint& out, bool giveUp) {
+        auto& cells = self.mUncovered;
+        if (mScanned == 0) {
+            // A new pass: scan the leaves.
+            cells.clear();
+            for (const Leaf& leaf : self.mLeaves) {
+                gatherNear(leaf.x0, leaf.y0, leaf.s);
+                int own = -1;
+                for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
+                    const int o = self.mSegs[i].own;
+                    own = i == leaf.seg0 || o == own ? o : -1;
+                }
+                uncoveredCells(leaf.x0, leaf.y0, leaf.s, 4.0, own);
+            }
+            mScanned = self.mTraced.size();
+        } else {
+            // Only the discs traced since: drop the cells they cover, narrow the others' gaps.
+            for (size_t t = mScanned; t < self.mTraced.size(); ++t) {
+                const uint32_t idx = self.mTraced[t];
+                const Certificate& c = self.mCert[idx];
+                const Disc d{pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))}),
+                             c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle};
+                self.mDiscs.assign(1, d);
+                size_t kept = 0;
+                for (Uncovered& u : cells) {
+                    if (cellInDisc(u.a0, u.b0, u.size, -1) ||
+                        (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own)))
+                        continue;
+                    gapTo(u, d);
+                    cells[kept++] = u;
+                }
+                cells.resize(kept);
+            }
+            mScanned = self.mTraced.size();
         }
-        if (giveUp || best < self.mSettings.coverageGap * epsWorld) return false;
-        const int ia = static_cast<int>(ua), ib = static_cast<int>(ub);
-        const LatticePoint cand[5] = {{ia + 1, ib + 1}, {ia, ib}, {ia + 2, ib}, {ia + 2, ib + 2}, {ia, ib + 2}};
+        const Uncovered* far = nullptr;
+        for (const Uncovered& u : cells)
+            if (!far || u.gap > far->gap) far = &u;
+        if (giveUp || !far || far->gap < self.mSettings.coverageGap * epsWorld) return false;
+        const int ia = static_cast<int>(far->a0), ib = static_cast<int>(far->b0);
+        const int h = static_cast<int>(far->size) / 2;
+        const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
         for (const LatticePoint& q : cand) {
             if (self.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != self.mGeneration) {
                 out = q;
@@ -664,8 +719,17 @@ struct ContourIntegrator::Lattice {
         // the light's border): restart one level deeper.
         for (int i = 0; i < 4; ++i) {
             const int j = (i + 1) & 3;
-            if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i])
-                return false;
+            if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i]) {
+                if (!self.mSettings.coverage) return false;
+                // With coverage, no restart: the sample is marked, and another pass at this
+                // level splits the neighbour that holds it on its side (markedInside).
+                const LatticePoint m = midpoint(c[i], c[j]);
+                const uint32_t idx = static_cast<uint32_t>(static_cast<size_t>(m.b) * (N + 1) + m.a);
+                if (std::find(self.mMarked.begin(), self.mMarked.end(), idx) == self.mMarked.end()) {
+                    self.mMarked.push_back(idx);
+                    remark = true;
+                }
+            }
         }
         const int h = s / 2;
         for (int sy = 0; sy < 2; ++sy)
@@ -817,7 +881,9 @@ struct ContourIntegrator::Lattice {
             // it belongs to when both ends agree (the horizon belongs to none), and the band
             // around it where only that obstacle's discs need to exclude the others.
             const uint32_t seg0 = static_cast<uint32_t>(self.mSegs.size());
-            const double band = std::max(0.5 * s, 2.0) * unit;
+            // Half a first-level square (at this pass's level) on either side: a refined square's
+            // contour keeps its first-level square's band.
+            const double band = 0.5 * double(2 << (n - passLevel)) * unit;
             for (int q = 0; q < nPieces; ++q) {
                 const Vertex& a = x[pieces[q].exitSide];
                 const Vertex& b = x[pieces[q].entrySide];
@@ -917,6 +983,7 @@ struct ContourIntegrator::Lattice {
         g = Vec3(0.0);
         dg = Mat3(0.0);
         bound = 0.0;
+        passLevel = r;
         self.mLeaves.clear();
         self.mSegs.clear();
         const int k = n - r;
@@ -958,31 +1025,36 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         return est;
     }
     int level = 0;
-    int coverageRays = 0;
+    int coverageRays = 0, repasses = 0, remarks = 0;
     for (;;) {
+        lat.remark = false;
         if (!lat.pass(level)) {
             ++lat.counts.restarts;
             ++level;  // cannot exceed n: at k = 0 no square splits, so no inconsistency arises
             continue;
         }
         if (!mSettings.coverage) break;
+        if (lat.remark && ++remarks <= kMaxRepasses) continue;
         // Coverage: rays where no disc and no contour band proves the answer. One that
         // contradicts the contour (a shadow or window the pass missed) makes the pass run again,
         // splitting the squares it lies in; every ray is reused.
         bool again = false;
-        double lost = 0.0;
         LatticePoint q;
-        while (lat.nextCoverageSample(q, lost, coverageRays >= kMaxCoverageRays)) {
+        lat.mScanned = 0;
+        while (lat.nextCoverageSample(q, coverageRays >= kMaxCoverageRays)) {
             ++coverageRays;
+            lat.certifyNext = true;
             const bool vis = lat.visible(q);
-            if ((vis ? 1 : 0) != lat.predicted(q)) {
+            lat.certifyNext = false;
+            if ((vis ? 1 : 0) != lat.predicted(q) && repasses < kMaxRepasses) {
+                ++repasses;
                 mMarked.push_back(static_cast<uint32_t>(static_cast<size_t>(q.b) * (lat.N + 1) + q.a));
                 again = true;
                 break;
             }
         }
         if (!again) {
-            lat.bound += lost;
+            lat.bound += lat.uncoveredFormFactor();
             break;
         }
     }

@@ -491,13 +491,6 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
 
 namespace {
 
-/// Closest distance between the segment from + t v, t in [0, 1], and the point c.
-double segmentPointDistance(const Vec3& from, const Vec3& v, const Vec3& c) {
-    const double vv = glm::dot(v, v);
-    const double t = vv > 0.0 ? std::clamp(glm::dot(c - from, v) / vv, 0.0, 1.0) : 0.0;
-    return glm::length(from + t * v - c);
-}
-
 /// Signed certified radius against a sphere: min over t in (0, 1] of (|M + t v - c| - R) / t,
 /// positive for a clear segment (its radius), negative for one that enters (minus the depth
 /// radius). With s = 1/t this is min over s >= 1 of H(s) = |s A + v| - R s (A = M - c), a convex
@@ -566,7 +559,7 @@ double boxSdf(const Box3& b, const Vec3& p) {
 /// its depth.
 static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
                              double coarseError, const Box3& bounds, const Vec3& m, const Vec3& v,
-                             double want, bool blocked) {
+                             double want, bool blocked, double tHit) {
     const double length = glm::length(v);
     const double hc = coarseError;
     const double bandC = 0.98 * double(coarse.background());
@@ -604,32 +597,34 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                 vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25 + 0.5 * hf};
     };
 
-    // Clear part: the cone march.
-    const double rhoMin = want / 256.0;
-    double rho = want, t = 0.0;
+    // A blocked segment whose first hit lies in these bounds: its depth from there.
+    double t = 0.0;
     bool inside = false;
-    for (int it = 0; it < 400; ++it) {
-        const Vec3 p = m + t * v;
-        const Range r = range(p, 1.25 * rho * t + 1e-12);
-        if (r.lo <= 0.0) {
-            inside = blocked;
-            break;
-        }
-        if (r.lo < 1.25 * rho * t) {
-            // Too close for this cone to step on by at least a fifth of the ball: narrow it.
-            rho = 0.7 * r.lo / t;
-            if (rho < rhoMin) {  // grazing: nothing worth proving unless it goes in
-                inside = blocked;
-                break;
+    if (tHit >= 0.0) {
+        t = tHit;
+        inside = true;
+    } else {
+        // Clear part: the cone march. Radii under rhoMin are not worth the steps they take.
+        const double rhoMin = want / 64.0;
+        double rho = want;
+        for (int it = 0; it < 400; ++it) {
+            const Vec3 p = m + t * v;
+            const Range r = range(p, 1.25 * rho * t + 1e-12);
+            if (r.lo <= 0.0) break;
+            if (r.lo < 1.25 * rho * t) {
+                // Too close for this cone to step on by at least a fifth of the ball: narrow it.
+                rho = 0.7 * r.lo / t;
+                if (rho < rhoMin) break;
             }
+            const double next = (r.lo + length * t) / (length + rho);
+            if (next >= 1.0) return rho;
+            t = next;
         }
-        const double next = (r.lo + length * t) / (length + rho);
-        if (next >= 1.0) return rho;
-        t = next;
+        inside = blocked;
     }
     if (!inside) return 0.0;
     // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
-    // the largest -hi / t over points inside.
+    // the largest -hi / t over points inside, until it reaches `want`.
     double depth = 0.0;
     bool wasInside = false;
     for (int it = 0; it < 400 && t <= 1.0; ++it) {
@@ -637,6 +632,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         const Range r = range(p, 0.0);
         if (r.hi < 0.0) {
             depth = std::max(depth, -r.hi / std::max(t, 1e-12));
+            if (depth >= want) return -want;
             wasInside = true;
         } else if (wasInside && r.lo > 0.0) {
             break;  // out again: later entries are other chords, not needed for a bound
@@ -647,8 +643,8 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     return -depth;
 }
 
-void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double want,
-                              Certificate& out) {
+void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double tHit,
+                              double want, Certificate& out) {
     out = Certificate{};
     const Vec3 v = to - from;
     if (!(want > 0.0) || !(glm::dot(v, v) > 0.0)) return;
@@ -664,9 +660,11 @@ void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, do
         if (bounds.empty()) continue;
         // Quick bound: the distance from the segment to the bounds' circumscribed sphere
         // (t <= 1, so it is also a bound on phi / t).
-        const Vec3 centre = 0.5 * (bounds.lo + bounds.hi);
-        const double far =
-            segmentPointDistance(from, v, centre) - 0.5 * glm::length(bounds.hi - bounds.lo);
+        // Quick bound: the circumscribed sphere of the bounds (exact radius, closed form).
+        AnalyticSphere around;
+        around.center = 0.5 * (bounds.lo + bounds.hi);
+        around.radius = 0.5 * glm::length(bounds.hi - bounds.lo);
+        const double far = sphereRadius(around, from, v);
         double r;
         if (far >= want) {
             r = want;
@@ -677,10 +675,15 @@ void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, do
             } else if (const auto* box = std::get_if<AnalyticBox>(&shape)) {
                 r = boxRadius(*box, from, v);
             } else {
+                // A blocked segment's first hit inside these bounds: measure the depth there.
+                const double length = glm::length(v);
+                const Vec3 hitPoint = from + (tHit / length) * v;
+                const bool hitHere = blocked && glm::all(glm::greaterThanEqual(hitPoint, bounds.lo)) &&
+                                     glm::all(glm::lessThanEqual(hitPoint, bounds.hi));
                 r = mImpl->levelSets[i]
                         ? levelSetRadius(*mImpl->levelSets[i], mOccluder->mFar[i]->get(),
-                                         mOccluder->mFar[i]->error(), bounds,
-                                         from, v, want, blocked)
+                                         mOccluder->mFar[i]->error(), bounds, from, v, want,
+                                         blocked, hitHere ? tHit / length : -1.0)
                         : want;
             }
             r = std::clamp(r, -want, want);

@@ -304,7 +304,10 @@ public:
         // depend on which thread shaded what before), and only on receiver planes: a ray that
         // starts on a curved obstacle's own surface is not measured near its start.
         mTs.integrator.forgetCorners();
+        // With coverage a ray must carry its own certificate (a reused one's is about another
+        // origin), so reuse is off there.
         mReuse = mSettings.reuseFirstLevel && mSettings.aci.tangentContour &&
+                 !mSettings.aci.coverage &&
                  mTs.hits[size_t(x0)].object >= 0 &&
                  size_t(mTs.hits[size_t(x0)].object) < mCtx.scene.receivers.size();
         Box3 spanBox;

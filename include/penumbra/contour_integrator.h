@@ -205,6 +205,13 @@ private:
         int type;  // 0 hidden, 1 visible, 2 contour (segments seg0 .. seg1)
         uint32_t seg0, seg1;
     };
+    struct Uncovered {  // a cell of the light no disc or band proves yet
+        double a0, b0, size;  // lattice coordinates
+        double gap;           // its centre's distance to the nearest disc that would prove it
+        int own;              // the obstacle of the contour band it is in, -1 none
+        Vec3 centre;
+    };
+    std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
     std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
     std::vector<Segment> mSegs;      // coverage: the last pass's contour segments
     std::vector<Segment> mNearSegs;  // coverage scratch: segments near one leaf

@@ -122,12 +122,14 @@ public:
     /// sphere-traced along the segment for it, which costs about one more march.
     bool occluded(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance);
 
-    /// The certificate of the segment from `from` to `to`, whose answer `blocked` the caller
-    /// has just obtained from occluded(). Radii are computed up to `want` (a larger radius is
-    /// reported as `want`): ask for what would cover the region of interest, e.g. the light.
+    /// The certificate of the segment from `from` to `to`, whose answer `blocked` (and, when
+    /// blocked, the distance `tHit` from `from` to the first hit) the caller has just obtained
+    /// from occluded(). Radii are computed up to `want` (a larger radius is reported as `want`):
+    /// ask for what would cover the region of interest; radii far below it are reported as 0.
     /// Costs a march over the obstacles' far-field companions (prepareClearance() builds them);
     /// not counted as a shadow ray.
-    void certify(const Vec3& from, const Vec3& to, bool blocked, double want, Certificate& out);
+    void certify(const Vec3& from, const Vec3& to, bool blocked, double tHit, double want,
+                 Certificate& out);
 
     /// Restricts the following queries to the obstacles listed (indices into the Occluder), e.g.
     /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its
