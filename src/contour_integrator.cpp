@@ -88,8 +88,8 @@ struct ContourIntegrator::Lattice {
     double unit;         // world length of one lattice unit (averaged over the two edges)
     size_t mScanned = 0;  // coverage: traced rays already in self.mUncovered (0: scan anew)
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
-    bool remark = false;       // coverage: the pass marked new samples and must run again
     int passLevel = 0;         // the restart level of the current pass
+    bool remark = false;       // coverage: the pass marked new samples and must run again
     AciCounts counts;
     Vec3 g{0.0};
     Mat3 dg{0.0};
@@ -720,9 +720,10 @@ struct ContourIntegrator::Lattice {
         for (int i = 0; i < 4; ++i) {
             const int j = (i + 1) & 3;
             if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i]) {
-                if (!self.mSettings.coverage) return false;
-                // With coverage, no restart: the sample is marked, and another pass at this
-                // level splits the neighbour that holds it on its side (markedInside).
+                // With coverage, restarts stop after the first: deeper, the sample is marked
+                // and another pass at the same level splits the neighbour holding it on its side
+                // (markedInside), which bounds the work of a cascade of inconsistencies.
+                if (!self.mSettings.coverage || passLevel == 0) return false;
                 const LatticePoint m = midpoint(c[i], c[j]);
                 const uint32_t idx = static_cast<uint32_t>(static_cast<size_t>(m.b) * (N + 1) + m.a);
                 if (std::find(self.mMarked.begin(), self.mMarked.end(), idx) == self.mMarked.end()) {

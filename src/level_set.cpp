@@ -72,6 +72,8 @@ LevelSetInfo describe(const LevelSet& ls) {
     return info;
 }
 
+double voxelSizeOf(const LevelSet& ls) { return ls.voxelSize(); }
+
 double sampleLevelSet(const LevelSet& ls, const Vec3& pointWS) {
     const openvdb::FloatGrid& grid = ls.grid();
     // An unregistered accessor: the grid is read-only while it lives, and registering one would

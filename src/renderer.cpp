@@ -126,7 +126,37 @@ bool Shaft::overlaps(const Box3& box) const {
 }
 
 double automaticRayOffset(const Scene& scene, const Occluder& occluder) {
-    if (occluder.minVoxelSize() > 0.0) return 1.5 * occluder.minVoxelSize();
+    if (occluder.minVoxelSize() > 0.0) {
+        double largest = 0.0;
+        for (size_t i = 0; i < occluder.size(); ++i) {
+            if (const auto* ls = std::get_if<LevelSetPtr>(&occluder.shape(i)))
+                largest = std::max(largest, 1.5 * voxelSizeOf(**ls));
+        }
+        return std::max(largest, rayOffsetFloor(scene, occluder));
+    }
+    return rayOffsetFloor(scene, occluder);
+}
+
+double receiverRayOffset(const Occluder& occluder, const Vec3& p, double floor) {
+    double offset = floor;
+    for (size_t i = 0; i < occluder.size(); ++i) {
+        const auto* ls = std::get_if<LevelSetPtr>(&occluder.shape(i));
+        if (!ls) continue;
+        const double wanted = 1.5 * voxelSizeOf(**ls);
+        if (wanted <= offset) continue;
+        // Beyond the bounds (active voxels and a voxel) widened by `wanted`, the surface is
+        // farther than `wanted`: no need to sample.
+        const Box3& b = occluder.bounds(i);
+        if (b.empty() || glm::any(glm::lessThan(p, b.lo - Vec3(wanted))) ||
+            glm::any(glm::greaterThan(p, b.hi + Vec3(wanted))))
+            continue;
+        const double phi = sampleLevelSet(**ls, p);
+        offset = std::max(offset, std::clamp(wanted - phi, 0.0, wanted));
+    }
+    return offset;
+}
+
+double rayOffsetFloor(const Scene& scene, const Occluder& occluder) {
     double scale = 1.0;
     auto grow = [&](const Vec3& p) {
         for (int a = 0; a < 3; ++a) {
@@ -173,6 +203,7 @@ struct PixelSum {
     Rgb irradiance{0.0};  // sum over lights of radiance x F
     double formFactor = 0.0;
     Vec3 gradient{0.0};
+    double errorBound = 0.0;  // sum over lights of the estimates' bounds (NaN: none given)
     uint64_t rays = 0;
     // Shadow rays were needed here: traced at this pixel, or first-level rays reused from an
     // earlier pixel of the span (the same pixels for every method: Table 1's denominator).
@@ -183,6 +214,7 @@ struct PixelSum {
 struct Sample {
     Vec3 g{0.0};
     Vec3 gradient{0.0};
+    double errorBound = 0.0;
     std::vector<uint8_t> pattern;
     int grid = 0;  // first-level grid the pattern was traced on
 };
@@ -191,7 +223,9 @@ struct Context {
     const Scene& scene;
     const PinholeCamera& camera;
     const Occluder& occluder;
-    const RenderSettings& settings;  // aci.rayOffset resolved
+    const RenderSettings& settings;  // aci.rayOffset resolved (the largest, when automatic)
+    bool offsetPerPoint;             // rayOffset automatic: receiverRayOffset at each pixel
+    double offsetFloor;              // rayOffsetFloor, for receiverRayOffset
     Image& color;
     RenderAovs& aovs;
 };
@@ -397,7 +431,7 @@ public:
         mGrid = mSettings.aci.grid;
         mTs.shadow.restrictTo(nullptr);
         Estimate e = evaluate(x, /*adapt=*/false);
-        store(x, e.formFactor, e.gradient);
+        store(x, e.formFactor, e.gradient, e.errorBound);
     }
 
 private:
@@ -406,16 +440,25 @@ private:
         return Receiver{h.point, h.normal};
     }
 
-    void store(int x, double f, const Vec3& grad) {
+    void store(int x, double f, const Vec3& grad, double bound = 0.0) {
         PixelSum& s = mTs.sums[size_t(x)];
         s.irradiance += mLight.radiance * f;
         s.formFactor += f;
         s.gradient += grad;
+        s.errorBound += bound;
+    }
+
+    // The shadow rays' start offset at pixel x.
+    double rayOffset(int x) const {
+        return mCtx.offsetPerPoint
+                   ? receiverRayOffset(mCtx.occluder, mTs.hits[size_t(x)].point, mCtx.offsetFloor)
+                   : mSettings.aci.rayOffset;
     }
 
     // A Monte Carlo estimate at pixel x, seeded by the pixel and the light only.
     void monteCarlo(int x) {
         McSettings s = mSettings.mc;
+        s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
         const Receiver r = receiver(x);
         uint64_t before = mTs.shadow.raysCast();
@@ -430,13 +473,14 @@ private:
         mTs.sums[size_t(x)].shadowed = true;
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;
         mTs.stats.secondLevelRays += e.counts.secondLevelRays;
-        store(x, e.formFactor, Vec3(0.0));
+        store(x, e.formFactor, Vec3(0.0), e.errorBound);
     }
 
     Estimate evaluate(int x, bool adapt) {
         AciSettings s = mSettings.aci;
         s.grid = mGrid;
         s.reuseCorners = mReuse;
+        s.rayOffset = rayOffset(x);
         mTs.integrator.setSettings(s);
         uint64_t before = mTs.shadow.raysCast();
         Estimate e = mTs.integrator.evaluate(receiver(x), mLight, mTs.shadow);
@@ -474,14 +518,15 @@ private:
     Sample exact(int x) {
         int grid = mGrid;
         Estimate e = evaluate(x, /*adapt=*/true);
-        store(x, e.formFactor, e.gradient);
-        return Sample{e.g, e.gradient, std::move(e.pattern), grid};
+        store(x, e.formFactor, e.gradient, e.errorBound);
+        return Sample{e.g, e.gradient, e.errorBound, std::move(e.pattern), grid};
     }
 
     std::vector<uint8_t> pattern(int x, int grid) {
         AciSettings s = mSettings.aci;
         s.grid = grid;
         s.reuseCorners = mReuse;
+        s.rayOffset = rayOffset(x);
         mTs.integrator.setSettings(s);
         AciCounts counts;
         uint64_t before = mTs.shadow.raysCast();
@@ -543,7 +588,9 @@ private:
         Vec3 g = w0 * s0.g + wm * sm.g + w1 * s1.g;
         Vec3 grad = w0 * s0.gradient + wm * sm.gradient + w1 * s1.gradient;
         double f = std::max(0.0, glm::dot(g, mTs.hits[size_t(i)].normal));
-        store(i, f, grad);
+        // The samples' largest bound (an interpolated pixel's is not certified by rays of its
+        // own; docs/estimator.md).
+        store(i, f, grad, std::max({s0.errorBound, sm.errorBound, s1.errorBound}));
         ++mTs.stats.interpolatedPixels;
     }
 
@@ -603,6 +650,7 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
         ctx.aovs.shadowRays.at(x, y) = float(s.rays);
         ctx.aovs.formFactor.at(x, y) = float(s.formFactor);
         ctx.aovs.gradient.at(x, y) = float(glm::length(s.gradient));
+        ctx.aovs.errorBound.at(x, y) = float(s.errorBound);
         const bool shadowed = s.rays > 0 || s.shadowed;
         ctx.aovs.mask.at(x, y) = shadowed ? 1.0f : 0.0f;
         st.shadowRays += s.rays;
@@ -689,7 +737,8 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         occluder.prepareClearance();
 
     RenderSettings settings = settingsIn;
-    if (!(settings.aci.rayOffset > 0.0)) settings.aci.rayOffset = automaticRayOffset(scene, occluder);
+    const bool offsetPerPoint = !(settings.aci.rayOffset > 0.0);
+    if (offsetPerPoint) settings.aci.rayOffset = automaticRayOffset(scene, occluder);
     settings.mc.rayOffset = settings.aci.rayOffset;
     if (settings.mc.samples == 0) settings.mc.samples = defaultSamples(settings.method);
     // threads < 0: run in the caller's arena (a batch shares one arena between its jobs).
@@ -707,8 +756,12 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     result.aovs.shadowRays = Image(width, height, 1);
     result.aovs.formFactor = Image(width, height, 1);
     result.aovs.gradient = Image(width, height, 1);
+    result.aovs.errorBound = Image(width, height, 1);
     result.aovs.mask = Image(width, height, 1);
-    const Context ctx{scene, camera, occluder, settings, result.color, result.aovs};
+    const Context ctx{scene,          camera,
+                      occluder,       settings,
+                      offsetPerPoint, rayOffsetFloor(scene, occluder),
+                      result.color,   result.aovs};
 
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;

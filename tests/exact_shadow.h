@@ -1,7 +1,7 @@
 /// @file exact_shadow.h
 /// Independent reference values for tests: catalogued closed-form form factors, exact form
-/// factors of a rectangular light partly hidden by a sphere or by a convex polyhedron, and a
-/// brute-force midpoint-rule quadrature.
+/// factors of a rectangular light partly hidden by a sphere, by a convex polyhedron or by
+/// several of them with overlapping shadows, and a brute-force midpoint-rule quadrature.
 ///
 /// Deliberately independent of the library: nothing here calls form_factor.h or any estimator,
 /// so a test that sets the library against these values compares two separate derivations.
@@ -388,6 +388,328 @@ class ConvexPolyhedron {
     std::vector<Vec3> mNormals;
     std::vector<double> mOffsets;
 };
+
+// ---------------------------------------------------------------------------------------------
+// Several obstacles: spheres and convex polyhedra, overlapping shadows.
+
+/// A sphere obstacle for rectMinusObstacles.
+struct SphereObstacle {
+    Vec3 center;
+    double radius = 0.0;
+};
+
+/// A convex polyhedron obstacle for rectMinusObstacles: the convex hull of `vertices`
+/// (vertices inside the hull are allowed and ignored).
+struct ConvexObstacle {
+    std::vector<Vec3> vertices;
+
+    /// The axis-aligned box [lo, hi] (its eight corners).
+    static ConvexObstacle box(const Vec3& lo, const Vec3& hi) {
+        ConvexObstacle b;
+        for (int i = 0; i < 8; ++i)
+            b.vertices.emplace_back((i & 1) ? hi.x : lo.x, (i & 2) ? hi.y : lo.y,
+                                    (i & 4) ? hi.z : lo.z);
+        return b;
+    }
+};
+
+namespace detail {
+
+/// Great-circle arc p(s) = u cos s + w sin s, s in [0, length], on the great circle with unit
+/// normal `normal` = u x w. As a piece of a region's boundary, the region is on its left seen
+/// from outside the unit sphere, i.e. where dot(normal, d) > 0.
+struct GreatArc {
+    Vec3 u, w, normal;
+    double length = 0.0;
+    Vec3 at(double s) const { return u * std::cos(s) + w * std::sin(s); }
+};
+
+inline GreatArc greatArc(const Vec3& from, const Vec3& to) {
+    GreatArc arc;
+    arc.u = from;
+    arc.normal = glm::normalize(glm::cross(from, to));
+    arc.w = glm::cross(arc.normal, from);  // unit, toward `to`
+    arc.length = angleBetween(from, to);
+    return arc;
+}
+
+/// A region of the unit sphere of directions around M: a spherical cap (boundary: the small
+/// circle d(t) = cosA axis + sinA (cos t e1 + sin t e2), e1 x e2 = axis, so increasing t runs
+/// positively around the cap) or a convex spherical polygon (great-circle arcs in positive
+/// order, the region on their left).
+struct DirRegion {
+    bool isCap = false;
+    Vec3 axis, e1, e2;
+    double cosA = 0.0, sinA = 0.0;
+    std::vector<GreatArc> arcs;
+
+    Vec3 capPoint(double t) const {
+        return cosA * axis + sinA * (std::cos(t) * e1 + std::sin(t) * e2);
+    }
+    /// > 0 strictly inside, < 0 strictly outside, 0 on the boundary (not a distance, only its
+    /// sign and its vanishing matter).
+    double depth(const Vec3& d) const {
+        if (isCap) return glm::dot(d, axis) - cosA;
+        double inner = 1e300;
+        for (const GreatArc& a : arcs) inner = std::min(inner, glm::dot(a.normal, d));
+        return inner;
+    }
+};
+
+inline DirRegion capRegion(const Vec3& axis, double sinA) {
+    DirRegion r;
+    r.isCap = true;
+    r.axis = axis;
+    r.sinA = sinA;
+    r.cosA = std::sqrt((1.0 - sinA) * (1.0 + sinA));
+    const Vec3 helper = std::abs(axis.x) < 0.6 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+    r.e1 = glm::normalize(glm::cross(helper, axis));
+    r.e2 = glm::cross(axis, r.e1);
+    return r;
+}
+
+/// Convex spherical polygon from its vertex directions in positive order.
+inline DirRegion polygonRegion(const std::vector<Vec3>& dirs) {
+    DirRegion r;
+    for (size_t i = 0; i < dirs.size(); ++i)
+        r.arcs.push_back(greatArc(dirs[i], dirs[(i + 1) % dirs.size()]));
+    return r;
+}
+
+/// Where a piece of one region's boundary lies relative to another region.
+enum class Relation {
+    In,          ///< inside the other region
+    Out,         ///< outside it
+    OnSame,      ///< on its boundary, both regions on the same side of the piece
+    OnOpposite,  ///< on its boundary, the regions on opposite sides
+};
+
+/// |n1 x n2| below which two great circles count as one, and |depth| below which a piece
+/// lying along such a circle (or along an identical cap) counts as on the other region's
+/// boundary. Unit vectors carry ~1e-16 rounding; counting curves 1e-9 apart as one errs by
+/// at most the thin region between them.
+constexpr double kSameCircle = 1e-9;
+constexpr double kOnBoundary = 1e-9;
+
+/// Relation of a boundary piece of region `own` (sampled at `samples`; `arc` is the piece's
+/// great-circle arc, nullptr for a piece of own's cap circle) to region `other`. The sign of
+/// other's depth is constant along the piece (it is split at every crossing), so the sample
+/// farthest from other's boundary decides (a tangency at one sample cannot mislead it). Only
+/// a piece coincident with other's boundary (every sample on it, and a great circle or cap
+/// in common) is "on" it; then the orientations decide.
+inline Relation relation(const std::vector<Vec3>& samples, const DirRegion& own,
+                         const GreatArc* arc, const DirRegion& other) {
+    double best = 0.0;
+    for (const Vec3& d : samples) {
+        const double x = other.depth(d);
+        if (std::abs(x) > std::abs(best)) best = x;
+    }
+    if (std::abs(best) > kOnBoundary) return best > 0.0 ? Relation::In : Relation::Out;
+    if (arc != nullptr && !other.isCap) {
+        for (const GreatArc& a : other.arcs)
+            if (glm::length(glm::cross(arc->normal, a.normal)) < kSameCircle)
+                return glm::dot(arc->normal, a.normal) > 0.0 ? Relation::OnSame
+                                                             : Relation::OnOpposite;
+    }
+    if (arc == nullptr && other.isCap && glm::length(own.axis - other.axis) < kSameCircle &&
+        std::abs(own.cosA - other.cosA) < kSameCircle)
+        return Relation::OnSame;
+    return best >= 0.0 ? Relation::In : Relation::Out;
+}
+
+/// Whether a boundary piece of region `g` (0: the light Q; >= 1: a hidden region) is a piece
+/// of the boundary of the visible set Q minus the union of the hidden regions, counted once.
+/// Q's pieces: not inside a hidden region, and not on a hidden region's boundary with that
+/// region on Q's side. A hidden region's pieces: strictly inside Q (on Q's boundary, Q's own
+/// piece is counted when it bounds the visible set), not inside another hidden region, not on
+/// another's boundary with that region on the other side; where several hidden regions share
+/// the piece on the same side, the lowest index counts it.
+inline bool boundsVisible(size_t g, const std::vector<Vec3>& samples,
+                          const std::vector<DirRegion>& regions, const GreatArc* arc) {
+    for (size_t k = 0; k < regions.size(); ++k) {
+        if (k == g) continue;
+        const Relation r = relation(samples, regions[g], arc, regions[k]);
+        if (g == 0) {
+            if (r == Relation::In || r == Relation::OnSame) return false;
+        } else if (k == 0) {
+            if (r != Relation::In) return false;
+        } else if (r == Relation::In || r == Relation::OnOpposite ||
+                   (r == Relation::OnSame && k < g)) {
+            return false;
+        }
+    }
+    return true;
+}
+
+}  // namespace detail
+
+/// Exact form factor from (M, n) to the light minus the part hidden by several obstacles:
+/// spheres and convex polyhedra (ConvexObstacle::box for axis-aligned boxes), in any number,
+/// whose shadows may overlap each other, nest or straddle the light's border, and which may
+/// overlap each other in 3D. Requirements (checked): the light emits toward M and is wholly
+/// above M's horizon; every sphere has radius > 0, does not contain M and lies strictly on
+/// M's side of the light's plane; every polyhedron vertex lies strictly between M and the
+/// light's plane (so M is outside it). Hence every ray from M that meets an obstacle and the
+/// light meets the obstacle first, and the hidden directions are those of the obstacles.
+///
+/// Method: on the unit sphere of directions around M the light is the convex spherical
+/// quadrilateral Q, a sphere hides a cap and a convex polyhedron a convex spherical polygon
+/// (the hull of its vertices' directions, from projectedHull). The visible set is
+/// V = Q minus the union of the hidden regions H_j, and, as in sphereShadowFormFactor,
+///   F = 1/(2 pi) * loop integral over the boundary of V of (d x dd) . n.
+/// That boundary is made of the pieces of Q's edges outside every H_j (run along Q's positive
+/// orientation) and the pieces of each H_j's boundary inside Q and outside every other H_k
+/// (run against H_j's orientation). Every boundary curve (Q's and the polygons' great-circle
+/// arcs, the caps' small circles) is split at its crossings with every other region's curves
+/// (circle / circle and circle / great circle: roots of A + B cos x + C sin x in closed form;
+/// great circle / great circle: +-(m1 x m2); where two arcs lie on one great circle, at the
+/// other's endpoints; each crossing is computed once and splits both curves at the same
+/// point), each piece is classified by sample points (see detail::relation and
+/// detail::boundsVisible, which also count once a piece shared by several regions: identical
+/// obstacles, polyhedron faces edge-on to M in a common plane) and integrated in closed form:
+/// (arc angle) * m . n for a great-circle arc of unit normal m, the cap formula of
+/// sphereShadowFormFactor for a small-circle arc. With one obstacle this is the same quantity
+/// as sphereShadowFormFactor or convexPolyhedronShadowFormFactor.
+inline double rectMinusObstacles(const Vec3& m, const Vec3& n, const Vec3& corner,
+                                 const Vec3& edgeU, const Vec3& edgeV,
+                                 const std::vector<SphereObstacle>& spheres,
+                                 const std::vector<ConvexObstacle>& polyhedra = {}) {
+    requireLightAboveHorizon(m, n, corner, edgeU, edgeV);
+    const Vec3 lightNormal = glm::normalize(glm::cross(edgeU, edgeV));  // points toward M
+
+    std::vector<detail::DirRegion> regions;
+    // Region 0: the light, corners in (s, t) clockwise order = positive on the sphere.
+    {
+        std::vector<Vec3> q;
+        for (const Vec3& p : {corner, corner + edgeV, corner + edgeU + edgeV, corner + edgeU})
+            q.push_back(glm::normalize(p - m));
+        require(glm::dot(glm::cross(q[0], q[1]), q[2]) > 0.0,
+                "rectMinusObstacles: degenerate light seen edge-on");
+        regions.push_back(detail::polygonRegion(q));
+    }
+    for (const SphereObstacle& s : spheres) {
+        require(s.radius > 0.0, "rectMinusObstacles: sphere radius must be > 0");
+        const Vec3 toCenter = s.center - m;
+        const double dist = glm::length(toCenter);
+        require(dist > s.radius, "rectMinusObstacles: M is inside a sphere");
+        require(glm::dot(s.center - corner, lightNormal) > s.radius,
+                "rectMinusObstacles: a sphere is not wholly on M's side of the light plane");
+        regions.push_back(detail::capRegion(toCenter / dist, s.radius / dist));
+    }
+    for (const ConvexObstacle& p : polyhedra) {
+        require(!p.vertices.empty(), "rectMinusObstacles: polyhedron without vertices");
+        const std::vector<Vec2> hull = projectedHull(m, corner, edgeU, edgeV, p.vertices);
+        if (hull.size() < 3) continue;  // flat and edge-on: hides a set of measure zero
+        std::vector<Vec3> dirs;         // the hull is (s, t) counterclockwise: reverse it
+        for (size_t i = hull.size(); i-- > 0;)
+            dirs.push_back(glm::normalize(corner + hull[i].x * edgeU + hull[i].y * edgeV - m));
+        regions.push_back(detail::polygonRegion(dirs));
+    }
+
+    // Every boundary curve: a great-circle arc of a polygon region, or a cap's whole circle.
+    struct Curve {
+        size_t region;
+        const detail::GreatArc* arc;  // nullptr: the cap circle of `region`
+        std::vector<double> breaks;   // arc: s in (0, length); circle: t in [0, 2 pi)
+    };
+    std::vector<Curve> curves;
+    for (size_t g = 0; g < regions.size(); ++g) {
+        if (regions[g].isCap) curves.push_back({g, nullptr, {}});
+        for (const detail::GreatArc& a : regions[g].arcs) curves.push_back({g, &a, {}});
+    }
+    // Splits a curve at the point of it closest to the direction x.
+    auto split = [&](Curve& c, const Vec3& x) {
+        const detail::DirRegion& r = regions[c.region];
+        double p = c.arc ? std::atan2(glm::dot(x, c.arc->w), glm::dot(x, c.arc->u))
+                         : std::atan2(glm::dot(x, r.e2), glm::dot(x, r.e1));
+        if (p < 0.0) p += kTwoPi;
+        if (c.arc == nullptr || (p > 0.0 && p < c.arc->length)) c.breaks.push_back(p);
+    };
+    // Crossings of every pair of curves of different regions, each found once as a point and
+    // split on both curves: near-tangent crossings are ill-conditioned (parameter errors up to
+    // ~1e-8), but both curves then end at the same point and the boundary loop stays closed.
+    // Crossings of whole circles, not only of the arcs: extra splits are harmless.
+    std::vector<double> roots;
+    for (size_t i = 0; i < curves.size(); ++i)
+        for (size_t j = i + 1; j < curves.size(); ++j) {
+            Curve& ci = curves[i];
+            Curve& cj = curves[j];
+            if (ci.region == cj.region) continue;
+            std::vector<Vec3> points;
+            if (ci.arc == nullptr || cj.arc == nullptr) {
+                // A small circle (the first that is one) against the other curve.
+                const bool iCircle = ci.arc == nullptr;
+                const detail::DirRegion& cap = regions[(iCircle ? ci : cj).region];
+                const Curve& other = iCircle ? cj : ci;
+                roots.clear();
+                if (other.arc != nullptr) {
+                    const Vec3& nu = other.arc->normal;
+                    trigRoots(cap.cosA * glm::dot(nu, cap.axis), cap.sinA * glm::dot(nu, cap.e1),
+                              cap.sinA * glm::dot(nu, cap.e2), roots);
+                } else {
+                    const Vec3& b = regions[other.region].axis;
+                    trigRoots(cap.cosA * glm::dot(cap.axis, b) - regions[other.region].cosA,
+                              cap.sinA * glm::dot(cap.e1, b), cap.sinA * glm::dot(cap.e2, b),
+                              roots);
+                }
+                for (double t : roots) points.push_back(cap.capPoint(t));
+            } else {
+                const Vec3 x = glm::cross(ci.arc->normal, cj.arc->normal);
+                const double len = glm::length(x);
+                if (len < detail::kSameCircle) {
+                    // Same great circle: split each arc at the other's endpoints.
+                    split(ci, cj.arc->u);
+                    split(ci, cj.arc->at(cj.arc->length));
+                    split(cj, ci.arc->u);
+                    split(cj, ci.arc->at(ci.arc->length));
+                    continue;
+                }
+                points.push_back(x / len);
+                points.push_back(-x / len);
+            }
+            for (const Vec3& x : points) {
+                split(ci, x);
+                split(cj, x);
+            }
+        }
+
+    const double fractions[] = {0.5, 0.25, 0.75};
+    std::vector<Vec3> samples(3);
+    double sum = 0.0;  // loop integral of (d x dd) . n over the visible set's boundary
+    for (Curve& c : curves) {
+        const detail::DirRegion& own = regions[c.region];
+        const double sign = c.region == 0 ? 1.0 : -1.0;  // hidden regions' boundaries reversed
+        std::vector<double>& cuts = c.breaks;
+        std::sort(cuts.begin(), cuts.end());
+        if (c.arc == nullptr) {
+            if (cuts.empty()) cuts.push_back(0.0);
+            for (size_t k = 0; k < cuts.size(); ++k) {
+                const double t0 = cuts[k];
+                const double t1 = k + 1 < cuts.size() ? cuts[k + 1] : cuts[0] + kTwoPi;
+                if (t1 <= t0) continue;
+                for (int i = 0; i < 3; ++i)
+                    samples[i] = own.capPoint(t0 + fractions[i] * (t1 - t0));
+                if (!detail::boundsVisible(c.region, samples, regions, nullptr)) continue;
+                const Vec3 integral = own.sinA * own.sinA * (t1 - t0) * own.axis -
+                                      own.sinA * own.cosA *
+                                          ((std::sin(t1) - std::sin(t0)) * own.e1 +
+                                           (std::cos(t0) - std::cos(t1)) * own.e2);
+                sum += sign * glm::dot(integral, n);
+            }
+            continue;
+        }
+        cuts.insert(cuts.begin(), 0.0);
+        cuts.push_back(c.arc->length);
+        for (size_t k = 0; k + 1 < cuts.size(); ++k) {
+            const double s0 = cuts[k], s1 = cuts[k + 1];
+            if (s1 <= s0) continue;
+            for (int i = 0; i < 3; ++i) samples[i] = c.arc->at(s0 + fractions[i] * (s1 - s0));
+            if (!detail::boundsVisible(c.region, samples, regions, c.arc)) continue;
+            sum += sign * (s1 - s0) * glm::dot(c.arc->normal, n);
+        }
+    }
+    return sum / kTwoPi;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Brute-force quadrature.

@@ -71,20 +71,23 @@ TEST_CASE("contour integral with no obstacle equals the closed form", "[aci]") {
 }
 
 TEST_CASE("a point in full light or full shadow spends only first-level rays", "[aci]") {
+    // The paper's method (the default's coverage may need fewer: see test_coverage.cpp).
     const RectLight light = testLight();
     Occluder occ({AnalyticSphere{kSphereCenter, kSphereRadius}});
     Occluder::Query query = occ.makeQuery();
+    AciSettings paper;
+    applyAciMode(paper, AciMode::Paper);
 
     const Receiver lit{Vec3(3.5, -3.0, 0.0), kUp};
     REQUIRE(exactSphere(lit, light) == Approx(unoccludedFormFactor(light, lit)).margin(1e-15));
-    const Estimate a = contourIntegral(lit, light, query);
+    const Estimate a = contourIntegral(lit, light, query, paper);
     CHECK(a.counts.firstLevelRays == 9);
     CHECK(a.counts.secondLevelRays == 0);
     CHECK(a.formFactor == Approx(unoccludedFormFactor(light, lit)).margin(1e-12));
 
     const Receiver umbra{Vec3(0.6, 0.4, 0.0), kUp};  // below the sphere: the light is hidden
     REQUIRE(exactSphere(umbra, light) == Approx(0.0).margin(1e-12));
-    const Estimate b = contourIntegral(umbra, light, query);
+    const Estimate b = contourIntegral(umbra, light, query, paper);
     CHECK(b.counts.firstLevelRays == 9);
     CHECK(b.counts.secondLevelRays == 0);
     CHECK(b.formFactor == Approx(0.0).margin(1e-12));

@@ -223,8 +223,12 @@ TEST_CASE("reusing first-level rays within a span saves rays and keeps the image
     // 1-Lipschitz): the patterns and the first level of full evaluations come out the same, so
     // the image may only move where a reused corner's approximate distance aims a probe
     // differently.
+    // Reuse needs the tangent mode without coverage: with coverage (the default) each ray must
+    // carry a certificate from its own origin, and nothing is reused.
     Scene scene = sphereScene(48, makeSphereLevelSet(kSphereCenter, kSphereRadius, 0.01, 3.0));
+    CHECK(render(scene, settingsFor(Method::Aci)).stats.reusedRays == 0);
     RenderSettings reuse = settingsFor(Method::Aci);
+    reuse.aci.coverage = false;
     RenderSettings fresh = reuse;
     fresh.reuseFirstLevel = false;
     RenderResult a = render(scene, reuse);

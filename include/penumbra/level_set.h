@@ -31,6 +31,9 @@ struct LevelSetInfo {
 };
 LevelSetInfo describe(const LevelSet& ls);
 
+/// The level set's voxel size in world units (cheap, unlike describe(), which walks the tree).
+double voxelSizeOf(const LevelSet& ls);
+
 /// The level set's value at a world-space point: trilinear interpolation of the voxel values
 /// (the signed distance within the band, +-background beyond it). Makes an accessor per call:
 /// for tests and occasional queries, not for inner loops.

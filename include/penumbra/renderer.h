@@ -63,8 +63,9 @@ struct RenderSettings {
     int width = 0;    ///< 0: the camera's width
     int height = 0;   ///< 0: the camera's height
     int threads = 0;  ///< worker threads; 0: every hardware thread; -1: the caller's TBB arena
-    /// Estimator settings (grid p, steps n, ...). rayOffset <= 0 picks it automatically:
-    /// 1.5 voxels of the finest level set, or 1e-6 x the scene's size without level sets.
+    /// Estimator settings (grid p, steps n, ...). rayOffset <= 0 picks it automatically at
+    /// each receiver point (receiverRayOffset): 1.5 voxels on and near level sets, 1e-6 x the
+    /// scene's size elsewhere.
     /// `gradient` off (the default here) skips the gradient, which only the gradient AOV uses.
     AciSettings aci = [] {
         AciSettings s;
@@ -96,6 +97,10 @@ struct RenderAovs {
     Image formFactor;  ///< sum over lights of F (interpolated where the colour was)
     Image gradient;    ///< |sum over lights of dF/dM|; zero unless settings.aci.gradient
     Image mask;        ///< 1 where shadow rays were cast at the pixel, else 0
+    /// Sum over lights of the estimator's bound on |F - F_exact| (Estimate::errorBound): the
+    /// default tangent mode's; NaN for methods that give none. Interpolated pixels take the
+    /// largest bound of the evaluations they are interpolated from.
+    Image errorBound;
 };
 
 struct RenderResult {
@@ -123,8 +128,23 @@ void checkRenderMemory(int width, int height, const std::string& file, const std
 RenderResult render(const Scene& scene, const RenderSettings& settings,
                     const RenderProgress& progress = {});
 
-/// The shadow rays automatically chosen start offset (see RenderSettings::aci).
+/// The shadow rays automatically chosen start offset (see RenderSettings::aci): the largest
+/// that receiverRayOffset may pick (1.5 voxels of the finest level set), or rayOffsetFloor
+/// without level sets.
 double automaticRayOffset(const Scene& scene, const Occluder& occluder);
+
+/// 1e-6 x the scene's size: enough for a ray to leave an exact surface (receiver planes,
+/// analytic obstacles) it starts on.
+double rayOffsetFloor(const Scene& scene, const Occluder& occluder);
+
+/// The automatic start offset of shadow rays from a receiver point p (along its normal). A
+/// level set's surface is known only to about a voxel, so a point on one starts its rays 1.5 of
+/// its voxels off; a point farther from every level set needs only `floor`. In between, the
+/// offset is what brings the origin 1.5 voxels from the surface, so it is continuous in p:
+/// max(floor, max over level sets i of clamp(1.5 v_i - phi_i(p), 0, 1.5 v_i)). Moving the origin
+/// moves the shadow: 1.5 voxels at every receiver made a level-set sphere's shadow on a plane
+/// that of a sphere about 0.19 voxel smaller.
+double receiverRayOffset(const Occluder& occluder, const Vec3& p, double floor);
 
 /// A shaft between two boxes after Haines and Wallace (1991): their common bounding box cut by
 /// the planes through matching edges of the two boxes, a convex volume that contains the convex

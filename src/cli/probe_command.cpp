@@ -36,6 +36,7 @@ struct ProbeOptions {
     int mcInitialDepth = 0;
     uint64_t seed = 0;
     bool samplesGiven = false;
+    bool errorBound = false;
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -85,8 +86,9 @@ int runProbe(const ProbeOptions& opt) {
     settings.grid = opt.grid;
     settings.steps = opt.steps;
     applyAciMode(settings, aciMode);
-    // Sensor points may sit on an obstacle's surface: start rays 1.5 voxels off it.
-    settings.rayOffset = occluder.minVoxelSize() > 0 ? 1.5 * occluder.minVoxelSize() : 1e-9;
+    // Sensor points may sit on an obstacle's surface: rays start 1.5 voxels off a level set's
+    // surface, a hair off anything else (receiverRayOffset, set for each point below).
+    settings.rayOffset = 1e-9;
     ContourIntegrator integrator(settings);
     McSettings mc;
     mc.samples = opt.samples > 0 ? opt.samples : defaultSamples(method);
@@ -125,11 +127,14 @@ int runProbe(const ProbeOptions& opt) {
 
     std::ostringstream out;
     out << std::setprecision(12);
-    out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays\n";
+    out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays" << (opt.errorBound ? ",error_bound" : "")
+        << '\n';
     for (size_t i = 0; i < points.size(); ++i) {
         const Receiver& r = points[i];
         // Seeded by the point's position in the input, so a run does not depend on anything else.
         mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), opt.seed);
+        mc.rayOffset = settings.rayOffset = receiverRayOffset(occluder, r.point, 1e-9);
+        integrator.setSettings(settings);
         Estimate e;
         switch (method) {
             case Method::Reference: e = monteCarloReference(r, light, query, mc); break;
@@ -140,7 +145,10 @@ int runProbe(const ProbeOptions& opt) {
         }
         out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << e.formFactor << ','
             << e.gradient.x << ',' << e.gradient.y << ',' << e.gradient.z << ','
-            << e.counts.shadowRays() << '\n';
+            << e.counts.shadowRays();
+        // The estimator's bound on |F - F_exact| (tangent mode); nan where it gives none.
+        if (opt.errorBound) out << ',' << e.errorBound;
+        out << '\n';
     }
     std::cout << out.str() << std::flush;
     return 0;
@@ -179,6 +187,10 @@ Runner addProbeCommand(CLI::App& app) {
     sub->add_option("--seed", opt->seed, "Monte Carlo: seed mixed with each point's line index")
         ->capture_default_str();
     sub->add_option("--light", opt->light, "Name of the light (default: the only light)");
+    sub->add_flag("--error-bound", opt->errorBound,
+                  "Append a column error_bound: the estimator's bound on |F - F_exact| (the "
+                  "default tangent mode's certified coverage; nan for the paper and arcs modes "
+                  "and the Monte Carlo methods)");
     sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-64)")
         ->check(CLI::Range(1, 64))
         ->capture_default_str();

@@ -40,7 +40,7 @@ struct RenderOptions {
     int mcInitialDepth = 0;
     uint64_t seed = 0;
     std::string stats;
-    std::string aovRays, aovFormFactor, aovGradient, aovMask;
+    std::string aovRays, aovFormFactor, aovGradient, aovMask, aovErrorBound;
     bool quiet = false;
     bool verbose = false;
     const CLI::App* command = nullptr;  // to tell options given from defaults
@@ -194,6 +194,7 @@ int runRender(const RenderOptions& o) {
     if (!o.aovFormFactor.empty()) imageFormatFor(o.aovFormFactor, "--aov-ff");
     if (!o.aovGradient.empty()) imageFormatFor(o.aovGradient, "--aov-gradient");
     if (!o.aovMask.empty()) imageFormatFor(o.aovMask, "--aov-mask");
+    if (!o.aovErrorBound.empty()) imageFormatFor(o.aovErrorBound, "--aov-error-bound");
     settings.threads = o.threads;
     settings.width = o.width;
     settings.height = o.height;
@@ -242,6 +243,10 @@ int runRender(const RenderOptions& o) {
     }
     if (!o.aovMask.empty()) {
         writeScalarAov(o.aovMask, "--aov-mask", result.aovs.mask, false, metadata);
+    }
+    if (!o.aovErrorBound.empty()) {
+        writeScalarAov(o.aovErrorBound, "--aov-error-bound", result.aovs.errorBound, true,
+                       metadata);
     }
     if (!o.stats.empty()) {
         RenderStats withBuild = st;
@@ -313,6 +318,9 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_option("--aov-gradient", o->aovGradient,
                     "Magnitude of the form factor's gradient (.png: heat map)");
     cmd->add_option("--aov-mask", o->aovMask, "1 where shadow rays were cast, 0 elsewhere");
+    cmd->add_option("--aov-error-bound", o->aovErrorBound,
+                    "Sum over lights of the estimator's bound on |F - F_exact| (default tangent "
+                    "mode; NaN for methods without one; .png: scaled grey)");
     cmd->add_flag("-q,--quiet", o->quiet, "No progress or summary");
     cmd->add_flag("-v,--verbose", o->verbose,
                   "Report what building the obstacles' level sets cost (voxels, memory, seconds "

@@ -1,0 +1,212 @@
+// Certified coverage (AciSettings::coverage, the default tangent mode): shadows and windows
+// that touch no first-level corner are found, and every answer comes with an error bound that
+// holds. Exact references: exact::rectMinusObstacles (tests/exact_shadow.h), independent of the
+// library.
+#include <catch2/catch.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "exact_shadow.h"
+#include "paper_scene.h"
+#include "penumbra/contour_integrator.h"
+#include "penumbra/monte_carlo.h"
+#include "penumbra/scene.h"
+
+using namespace penumbra;
+
+namespace {
+
+const Vec3 kUp(0, 0, 1);
+
+AciSettings modeSettings(AciMode mode) {
+    AciSettings s;
+    applyAciMode(s, mode);
+    return s;
+}
+
+double exactSpheres(const Receiver& r, const RectLight& l,
+                    const std::vector<AnalyticSphere>& spheres) {
+    std::vector<exact::SphereObstacle> s;
+    for (const AnalyticSphere& a : spheres) s.push_back({a.center, a.radius});
+    return exact::rectMinusObstacles(r.point, r.normal, l.corner, l.edgeU, l.edgeV, s);
+}
+
+// Where a sphere's shadow falls on the light's plane seen from m: the centre of the cone's
+// section (approximately: the axis' crossing) and its radius (the cone's half-angle at the
+// light's distance along the axis), in light coordinates (u, v) in [0, 1]^2.
+struct ShadowDisc {
+    double u, v, radius;  // radius in light units (fractions of the edge)
+};
+ShadowDisc shadowOnLight(const Vec3& m, const RectLight& l, const AnalyticSphere& s) {
+    const Vec3 n = l.normal();
+    const Vec3 d = s.center - m;
+    const double t = glm::dot(l.corner - m, n) / glm::dot(d, n);
+    const Vec3 hit = m + t * d;
+    const Vec2 uv = exact::lightCoords(hit, l.corner, l.edgeU, l.edgeV);
+    const double dist = glm::length(hit - m);
+    const double half = std::asin(s.radius / glm::length(d));
+    return {uv.x, uv.y, dist * std::tan(half) / glm::length(l.edgeU)};
+}
+
+// Whether no corner of the p x p first-level grid lies within the disc (or `margin` of it), the
+// disc being wholly on the light: then the paper's first level cannot see the shadow.
+bool holdsNoCorner(const ShadowDisc& d, int p, double margin) {
+    if (d.u - d.radius < 0.0 || d.u + d.radius > 1.0 || d.v - d.radius < 0.0 ||
+        d.v + d.radius > 1.0)
+        return false;
+    for (int i = 0; i <= p; ++i)
+        for (int j = 0; j <= p; ++j)
+            if (std::hypot(d.u - double(i) / p, d.v - double(j) / p) < d.radius + margin)
+                return false;
+    return true;
+}
+
+}  // namespace
+
+TEST_CASE("coverage: a small shadow inside one first-level square, touching no corner",
+          "[aci][coverage]") {
+    // Two spheres under a 2 x 2 light at height 4 (the configuration users reported): at the
+    // points below, the small high one's shadow on the light holds no first-level corner.
+    const RectLight light = test::paperLight();
+    const std::vector<AnalyticSphere> spheres = {{Vec3(-0.5, -0.3, 1.8), 0.45},
+                                                 {Vec3(0.35, 0.3, 2.5), 0.25}};
+    Occluder occ({spheres[0], spheres[1]});
+    Occluder::Query q = occ.makeQuery();
+    int found = 0;
+    double worstDefault = 0.0, worstPaper = 0.0;
+    for (int i = 0; i < 81; ++i) {
+        for (int j = 0; j < 81; ++j) {
+            const Receiver r{Vec3(-2.0 + 0.05 * i, -2.0 + 0.05 * j, 0.0), kUp};
+            if (!holdsNoCorner(shadowOnLight(r.point, light, spheres[1]), 2, 0.02)) continue;
+            ++found;
+            const double exact = exactSpheres(r, light, spheres);
+            const double full = unoccludedFormFactor(light, r);
+            const Estimate def = contourIntegral(r, light, q);
+            const Estimate pap = contourIntegral(r, light, q, modeSettings(AciMode::Paper));
+            const double e = std::abs(def.formFactor - exact);
+            CAPTURE(r.point.x, r.point.y, exact, def.formFactor, pap.formFactor, def.errorBound);
+            CHECK(e <= def.errorBound);
+            // Measured at this commit: at most 0.75% (the issue's target of 0.5% is not met
+            // where the two silhouettes come close; the paper's method is off by up to 12%).
+            CHECK(e <= 0.01 * full);
+            worstDefault = std::max(worstDefault, e / full);
+            worstPaper = std::max(worstPaper, std::abs(pap.formFactor - exact) / full);
+        }
+    }
+    REQUIRE(found >= 5);
+    // The configuration does hide a whole shadow from the paper's nine first-level rays.
+    CHECK(worstPaper > 0.05);
+    CHECK(worstDefault < 0.01);
+}
+
+TEST_CASE("coverage: a torus' window inside a hidden first-level square", "[aci][coverage]") {
+    // A level-set torus seen from below: its hole is a window of light inside its shadow whose
+    // disc on the light holds no first-level corner (the four corners around it are hidden).
+    // The receiver (0, 0, 0) looks at light point (0.5, 0.5, 4) through the torus' centre.
+    const std::string json = R"({
+      "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0]}],
+      "obstacles": [{"type": "torus", "center": [0.25, 0.25, 2], "major_radius": 0.3,
+                     "minor_radius": 0.12, "axis": [0.125, 0.125, 2]}],
+      "level_set": {"voxel_size": 0.01, "half_width": 3}
+    })";
+    const Scene scene = parseScene(json, "torus.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const RectLight& light = scene.lights[0];
+    const Receiver r{Vec3(0, 0, 0), kUp};
+    AciSettings s;
+    s.rayOffset = 1e-6;
+    const Estimate def = contourIntegral(r, light, q, s);
+    AciSettings paperSettings = modeSettings(AciMode::Paper);
+    paperSettings.rayOffset = 1e-6;
+    const Estimate pap = contourIntegral(r, light, q, paperSettings);
+    McSettings mc;
+    mc.samples = 1 << 16;
+    mc.rayOffset = 1e-6;
+    const double ref = monteCarloReference(r, light, q, mc).formFactor;
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(ref, def.formFactor, pap.formFactor, def.errorBound, full);
+    // The window is there and the paper's nine first-level rays do not see it (all hidden): the
+    // paper's answer misses a large part of it.
+    REQUIRE(ref > 0.05 * full);
+    CHECK(std::abs(pap.formFactor - ref) > 0.05 * full);
+    // Stratified 65,536 rays: standard error well under 0.2% of the unoccluded form factor.
+    CHECK(std::abs(def.formFactor - ref) <= 0.01 * full);
+    CHECK(std::abs(def.formFactor - ref) <= def.errorBound + 0.002 * full);
+}
+
+TEST_CASE("coverage: random scenes of analytic spheres, every error within its bound",
+          "[aci][coverage]") {
+    // 200 receiver points over 20 random scenes of 1 to 8 spheres with radii from 2% of the
+    // light's edge to 40% of it, anywhere between the receiver plane and the light.
+    const RectLight light = test::paperLight();
+    std::mt19937 rng(20261126);
+    std::uniform_real_distribution<double> u01(0.0, 1.0);
+    std::vector<double> errors, bounds;
+    double worst = 0.0, sum = 0.0;
+    for (int scene = 0; scene < 20; ++scene) {
+        const int count = 1 + scene % 8;
+        std::vector<AnalyticSphere> spheres;
+        for (int k = 0; k < count; ++k) {
+            const double radius = 2.0 * (0.02 + 0.38 * std::pow(u01(rng), 2.0));
+            const double z = 0.5 + radius + (3.5 - 2.0 * radius - 0.5) * u01(rng);
+            spheres.push_back({Vec3(-1.2 + 2.4 * u01(rng), -1.2 + 2.4 * u01(rng), z), radius});
+        }
+        Occluder occ;
+        for (const AnalyticSphere& s : spheres) occ.add(s);
+        Occluder::Query q = occ.makeQuery();
+        for (int k = 0; k < 10; ++k) {
+            const Receiver r{Vec3(-2.0 + 4.0 * u01(rng), -2.0 + 4.0 * u01(rng), 0.0), kUp};
+            const double exact = exactSpheres(r, light, spheres);
+            const double full = unoccludedFormFactor(light, r);
+            const Estimate e = contourIntegral(r, light, q);
+            const double err = std::abs(e.formFactor - exact);
+            CAPTURE(scene, k, r.point.x, r.point.y, exact, e.formFactor, e.errorBound, full);
+            CHECK(err <= e.errorBound + 1e-12);
+            worst = std::max(worst, err / full);
+            sum += err / full;
+            errors.push_back(err / full);
+            bounds.push_back(e.errorBound / full);
+        }
+    }
+    const double mean = sum / double(errors.size());
+    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+    std::nth_element(bounds.begin(), bounds.begin() + bounds.size() / 2, bounds.end());
+    const double medianError = errors[errors.size() / 2], medianBound = bounds[bounds.size() / 2];
+    CAPTURE(worst, mean, medianError, medianBound);
+    WARN("random spheres: max error " << worst * 100 << "%, mean " << mean * 100
+                                      << "%, median error " << medianError * 100
+                                      << "%, median bound " << medianBound * 100 << "%");
+    // Measured at this commit: max 2.2%, mean 0.17% (the paper's method on the same points:
+    // max 16.9%, mean 1.03%). The targets of 0.5% and 0.05% are not met yet (docs/estimator.md).
+    CHECK(worst <= 0.03);
+    CHECK(mean <= 0.0025);
+}
+
+TEST_CASE("coverage: a point whose first ray's disc covers the light needs one ray",
+          "[aci][coverage]") {
+    const RectLight light = test::paperLight();
+    Occluder occ({AnalyticSphere{Vec3(0.0, 0.0, 1.2), 0.6}});
+    Occluder::Query q = occ.makeQuery();
+    // Far to the side: every point of the ray to the light's centre is far from the sphere.
+    const Receiver lit{Vec3(-6.0, 6.0, 0.0), kUp};
+    const Estimate a = contourIntegral(lit, light, q);
+    CHECK(a.counts.shadowRays() == 1);
+    CHECK(a.formFactor == Approx(unoccludedFormFactor(light, lit)).margin(1e-12));
+    CHECK(a.errorBound == 0.0);
+    // Right under the sphere: the central ray goes 0.6 deep at 0.3 of the way, a disc of 2.
+    const Receiver umbra{Vec3(0.0, 0.0, 0.0), kUp};
+    const Estimate b = contourIntegral(umbra, light, q);
+    CHECK(b.counts.shadowRays() == 1);
+    CHECK(b.formFactor == Approx(0.0).margin(1e-12));
+    CHECK(b.errorBound == 0.0);
+    // The paper's method spends its nine first-level rays on both.
+    AciSettings paper;
+    applyAciMode(paper, AciMode::Paper);
+    CHECK(contourIntegral(lit, light, q, paper).counts.shadowRays() == 9);
+    CHECK(contourIntegral(umbra, light, q, paper).counts.shadowRays() == 9);
+}
