@@ -138,6 +138,7 @@ int main(int argc, char** argv) {
         s.midlineCheck = curved;   // ...and check case-3 squares on a random diagonal
         s.guidedProbes = probes;
         s.tangentContour = tangent;
+        s.coverage = tangent;  // certified coverage belongs to the tangent mode
         s.rayOffset = 1e-6;
         settings.push_back({name, s});
     };
@@ -157,6 +158,9 @@ int main(int argc, char** argv) {
     add("tangent 2x2, n=4", 2, 4, true, true, true, 1, true);
     add("DEFAULT tangent 2x2, n=5", 2, 5, true, true, true, 1, true);
     add("tangent 2x2, n=5, 2 probes", 2, 5, true, true, true, 2, true);
+    settings.push_back(settings[settings.size() - 2]);
+    settings.back().name = "tangent 2x2, n=5, no coverage";
+    settings.back().s.coverage = false;
     add("tangent 1x1, n=5", 1, 5, true, true, true, 1, true);
 
     std::printf("Receiver lines of %d points; light 2 x 2 at height 4; errors relative to the "

@@ -1,6 +1,9 @@
 // Benchmark (not a test): the cost of Occluder::Query::occluded over a bare OpenVDB
 // LevelSetRayIntersector loop casting the same shadow rays. Prints rays/s, the overhead ratio
-// and the hit counts of both, on 1 and 2 threads.
+// and the hit counts of both, on 1 and 2 threads; then the cost of occluded() (with the hit
+// distance) followed by Occluder::Query::certify on the same segments, for want = 1.41 (half
+// the diagonal of a 2 x 2 light) and want = 0.1, with its ratio to the bare intersector and the
+// mean certified radius.
 //
 // Scene: a level-set sphere (radius 0.5, voxel 0.01) at the origin; receivers on the plane
 // z = -1 and targets on a light at z = +1, both within |x|, |y| < 0.6, so almost every segment
@@ -81,6 +84,7 @@ int main(int argc, char** argv) {
     std::printf("sphere level set: voxel %.3g, %llu active voxels, %zu segments, best of %d\n",
                 info.voxelSize, (unsigned long long)info.activeVoxels, n, repeats);
 
+    occ.prepareClearance();  // far-field companion built before timing certify()
     const Occluder::Query queryProto = occ.makeQuery();
     const Intersector bareProto(ls->grid());
 
@@ -118,11 +122,47 @@ int main(int argc, char** argv) {
             hitsBare = hits.combine(std::plus<size_t>());
         };
 
-        // Alternate the two so that load from other processes hits both alike; keep the best.
-        double tOcc = 1e300, tBare = 1e300;
+        // occluded() with the hit distance, then certify() up to `want`: the sum of the
+        // certified radii and how many are > 0.
+        const double wants[2] = {1.41, 0.1};
+        double radiusSum[2] = {0.0, 0.0};
+        size_t certified[2] = {0, 0}, hitsCert[2] = {0, 0};
+        auto runCertify = [&](int w) {
+            const double want = wants[w];
+            tbb::enumerable_thread_specific<Occluder::Query> queries(queryProto);
+            tbb::combinable<double> sum([] { return 0.0; });
+            tbb::combinable<size_t> hits([] { return size_t(0); }),
+                nonzero([] { return size_t(0); });
+            tbb::parallel_for(
+                tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                    Occluder::Query& q = queries.local();
+                    size_t h = 0, c = 0;
+                    double s = 0.0;
+                    Certificate cert;
+                    for (size_t i = r.begin(); i != r.end(); ++i) {
+                        double tHit = -1.0;
+                        const bool hidden = q.occluded(segs[i].from, segs[i].to, &tHit);
+                        q.certify(segs[i].from, segs[i].to, hidden, tHit, want, cert);
+                        h += hidden;
+                        c += cert.radius > 0.0;
+                        s += cert.radius;
+                    }
+                    hits.local() += h;
+                    nonzero.local() += c;
+                    sum.local() += s;
+                });
+            hitsCert[w] = hits.combine(std::plus<size_t>());
+            certified[w] = nonzero.combine(std::plus<size_t>());
+            radiusSum[w] = sum.combine(std::plus<double>());
+        };
+
+        // Alternate the runs so that load from other processes hits them alike; keep the best.
+        double tOcc = 1e300, tBare = 1e300, tCert[2] = {1e300, 1e300};
         for (int r = 0; r < repeats; ++r) {
             tOcc = std::min(tOcc, seconds(runOcc));
             tBare = std::min(tBare, seconds(runBare));
+            for (int w = 0; w < 2; ++w)
+                tCert[w] = std::min(tCert[w], seconds([&] { runCertify(w); }));
         }
 
         std::printf(
@@ -130,6 +170,14 @@ int main(int argc, char** argv) {
             "(%.3f s), overhead (a)/(b) = %.3f; hits %zu vs %zu (%s)\n",
             threads, threads > 1 ? "s" : "", n / tOcc, tOcc, n / tBare, tBare, tOcc / tBare,
             hitsOcc, hitsBare, hitsOcc == hitsBare ? "agree" : "DIFFER");
+        for (int w = 0; w < 2; ++w) {
+            std::printf(
+                "%d thread%s: occluded + certify(want %.2f) %.3g rays/s (%.3f s), (c)/(b) = "
+                "%.3f; mean radius %.4g (%.1f%% of want), certified %.1f%%; hits %zu (%s)\n",
+                threads, threads > 1 ? "s" : "", wants[w], n / tCert[w], tCert[w], tCert[w] / tBare,
+                radiusSum[w] / n, 100.0 * radiusSum[w] / n / wants[w], 100.0 * certified[w] / n,
+                hitsCert[w], hitsCert[w] == hitsBare ? "agree" : "DIFFER");
+        }
     }
     return 0;
 }

@@ -533,10 +533,13 @@ double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
         }
     }
     double best = std::min({f1, f2, h(1.0)});
-    // The search stops on a bracket of 1e-12: shave the value by what t -> phi / t can drop
-    // inside it (its slope is at most (|v| + |phi|) / t^2).
-    const double tb = std::max(a, 1e-6);
-    best -= 1e-12 * (glm::length(v) + std::abs(best) * tb) / (tb * tb) + 1e-12;
+    // The search stops on a bracket of 1e-12: a clear radius is shaved by what t -> phi / t can
+    // drop inside it (its slope is at most (|v| + |phi|) / t^2). A depth radius needs no shave:
+    // any sampled depth is a true one.
+    if (best > 0.0) {
+        const double tb = std::max(a, 1e-6);
+        best = std::max(0.0, best - (1e-12 * (glm::length(v) + best * tb) / (tb * tb) + 1e-12));
+    }
     return best;
 }
 
