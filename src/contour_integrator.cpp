@@ -13,8 +13,8 @@ namespace {
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
-constexpr int kMaxCoverageRays = 48;    // coverage rays per evaluation before giving up
 constexpr int kMaxRepasses = 16;        // coverage passes at one level after the first
+constexpr double kCoverageCell = 8.0;   // coverage cells, in lattice units (1/8 of a default first-level square)
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
@@ -632,7 +632,7 @@ struct ContourIntegrator::Lattice {
                     const int o = self.mSegs[i].own;
                     own = i == leaf.seg0 || o == own ? o : -1;
                 }
-                uncoveredCells(leaf.x0, leaf.y0, leaf.s, 4.0, own);
+                uncoveredCells(leaf.x0, leaf.y0, leaf.s, kCoverageCell, own);
             }
             mScanned = self.mTraced.size();
         } else {
@@ -1042,7 +1042,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         bool again = false;
         LatticePoint q;
         lat.mScanned = 0;
-        while (lat.nextCoverageSample(q, coverageRays >= kMaxCoverageRays)) {
+        while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
             ++coverageRays;
             lat.certifyNext = true;
             const bool vis = lat.visible(q);

@@ -730,9 +730,9 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     if (settingsIn.height > 0) cam.height = settingsIn.height;
     const PinholeCamera camera(cam, scene.file);
     const Occluder occluder = scene.makeOccluder();
-    // The tangent mode's shadow rays ask for distances: build the far-field companions here,
-    // not inside the parallel loop.
-    if (settingsIn.aci.distanceGuided &&
+    // The tangent mode's shadow rays ask for distances and certificates: build the far-field
+    // companions (and measure their error) here, not inside the parallel loop.
+    if ((settingsIn.aci.distanceGuided || settingsIn.aci.coverage) &&
         (settingsIn.method == Method::Aci || settingsIn.method == Method::AciPixel))
         occluder.prepareClearance();
 

@@ -81,10 +81,13 @@ struct AciSettings {
     /// first ray's disc covers the whole light needs that one ray. See docs/estimator.md.
     bool coverage = true;
     /// With coverage: rays go to uncovered parts of the light until every uncovered point is
-    /// within this many final dichotomy intervals (epsilon) of a disc or contour band, so any
-    /// shadow or window that holds a disc of that radius is found. Smaller finds smaller
-    /// features for more rays; 4 is 1/8 of a first-level square's side at the defaults.
-    double coverageGap = 4.0;
+    /// within this many final dichotomy intervals (epsilon, the lattice resolution) of a disc or
+    /// contour band, so any shadow or window that holds a disc of that radius is found. Smaller
+    /// finds smaller features for more rays.
+    double coverageGap = 1.0;
+    /// With coverage: at most this many coverage rays per evaluation; what stays uncovered then
+    /// goes into the error bound (Estimate::errorBound) as its whole form factor.
+    int maxCoverageRays = 48;
     /// When set, every traced shadow ray's target is appended (tests use it to prove that no
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;
