@@ -495,7 +495,9 @@ private:
         st.restarts += e.counts.restarts;
         st.squaresRefined += e.counts.squaresRefined;
         st.maxDepth = std::max(st.maxDepth, e.counts.maxDepth);
-        if (adapt && mSettings.adaptiveGrid) {
+        // With coverage a finer first level buys nothing coverage does not already prove (and
+        // costs certified rays at every corner): the grid stays at its base there.
+        if (adapt && mSettings.adaptiveGrid && !mSettings.aci.coverage) {
             // Vedel 1993, section 5: finer after a refinement of depth >= 2 or an inconsistency,
             // coarser again when no refinement was needed, unchanged after depth 1. The tangent
             // mode refines only where its tangent arcs cannot stand (two silhouettes meeting,

@@ -75,7 +75,7 @@ struct RenderSettings {
     int maxSpan = 32;          ///< longest span, in pixels (section 5: "a maximum length")
     bool shaftCulling = true;  ///< off: every obstacle is a candidate of every span
     bool coherence = true;     ///< off: ACI at every pixel of a span that has candidates
-    bool adaptiveGrid = true;  ///< section 5's adaptive first-level density
+    bool adaptiveGrid = true;  ///< section 5's adaptive first-level density (not with coverage)
     /// Beyond the paper, tangent mode on receiver planes: answer a first-level ray again without
     /// tracing while the pixel's point has moved less than the ray's distance bound
     /// (AciSettings::reuseCorners), within each span.
