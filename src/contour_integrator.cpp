@@ -534,15 +534,19 @@ struct ContourIntegrator::Lattice {
         return false;
     }
 
+    // Distance from a light point to a contour segment.
+    static double distanceToSegment(const Vec3& p, const Segment& g) {
+        const Vec3 d = g.b - g.a;
+        const double dd = glm::dot(d, d);
+        const double t = dd > 0.0 ? std::clamp(glm::dot(p - g.a, d) / dd, 0.0, 1.0) : 0.0;
+        return glm::length(g.a + t * d - p);
+    }
+
     // The obstacle of a gathered contour segment whose band (its width around it) holds the
     // whole cell, -1 when none (or the segment's obstacle is unknown).
     int bandOwner(const Vec3& centre, double halfDiag) const {
         for (const Segment& g : self.mNearSegs) {
-            if (g.own < 0) continue;
-            const Vec3 d = g.b - g.a;
-            const double dd = glm::dot(d, d);
-            const double t = dd > 0.0 ? std::clamp(glm::dot(centre - g.a, d) / dd, 0.0, 1.0) : 0.0;
-            if (glm::length(g.a + t * d - centre) + halfDiag <= g.width) return g.own;
+            if (g.own >= 0 && distanceToSegment(centre, g) + halfDiag <= g.width) return g.own;
         }
         return -1;
     }
@@ -606,12 +610,8 @@ struct ContourIntegrator::Lattice {
             self.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
         }
         self.mNearSegs.clear();
-        for (const Segment& g : self.mSegs) {
-            const Vec3 d = g.b - g.a;
-            const double dd = glm::dot(d, d);
-            const double t = dd > 0.0 ? std::clamp(glm::dot(centre - g.a, d) / dd, 0.0, 1.0) : 0.0;
-            if (glm::length(g.a + t * d - centre) < g.width + half) self.mNearSegs.push_back(g);
-        }
+        for (const Segment& g : self.mSegs)
+            if (distanceToSegment(centre, g) < g.width + half) self.mNearSegs.push_back(g);
     }
 
     // The lattice point where coverage wants its next ray: the centre (or a corner not yet
@@ -695,13 +695,10 @@ struct ContourIntegrator::Lattice {
             int side = 1;
             for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
                 const Segment& g = self.mSegs[i];
-                const Vec3 d = g.b - g.a;
-                const double dd = glm::dot(d, d);
-                const double t = dd > 0.0 ? std::clamp(glm::dot(p - g.a, d) / dd, 0.0, 1.0) : 0.0;
-                const double dist = glm::length(g.a + t * d - p);
+                const double dist = distanceToSegment(p, g);
                 if (dist < best) {
                     best = dist;
-                    side = glm::dot(glm::cross(d, p - g.a), lightNormal) > 0.0 ? 1 : 0;
+                    side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
                 }
             }
             return side;
