@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "../tests/exact_shadow.h"
+#include "../tests/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 #include "penumbra/monte_carlo.h"
@@ -37,13 +38,7 @@ struct Totals {
     double rays = 0, seconds = 0;
 };
 
-RectLight light2x2() {
-    RectLight l;
-    l.corner = Vec3(-1, -1, 4);
-    l.edgeU = Vec3(0, 2, 0);
-    l.edgeV = Vec3(2, 0, 0);
-    return l;
-}
+RectLight light2x2() { return test::paperLight(); }
 
 std::vector<Case> makeCases(int scenes, int points) {
     const RectLight light = light2x2();
