@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const std::string kBunny = std::string(PENUMBRA_SOURCE_DIR) + "/../shared/data/bunny.obj";
+const std::string kBunny = std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/data/bunny.obj";
 
 ShapeNode node(ShapeKind kind, const Similarity& t = {}) { return ShapeNode{std::move(kind), t}; }
 
