@@ -139,15 +139,27 @@ TEST_CASE("coverage: a torus' window inside a hidden first-level square", "[aci]
     CHECK(std::abs(def.formFactor - ref) <= def.errorBound + 0.002 * full);
 }
 
-TEST_CASE("coverage: random scenes of analytic spheres, every error within its bound",
-          "[aci][coverage]") {
-    // 200 receiver points over 20 random scenes of 1 to 8 spheres with radii from 2% of the
-    // light's edge to 40% of it, anywhere between the receiver plane and the light.
-    const RectLight light = test::paperLight();
-    std::mt19937 rng(20261126);
-    std::uniform_real_distribution<double> u01(0.0, 1.0);
+namespace {
+
+// Errors and bounds (relative to the unoccluded form factor) of the default estimator at 200
+// receiver points over 20 random scenes of 1 to 8 spheres with radii from 2% of the light's
+// edge to 40% of it, anywhere between the receiver plane and the light.
+struct RandomSpheres {
     std::vector<double> errors, bounds;
-    double worst = 0.0, sum = 0.0;
+    double worst = 0.0, mean = 0.0;
+    int violations = 0;  // points whose error exceeds the reported bound
+    double median(std::vector<double> v) const {
+        std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+        return v[v.size() / 2];
+    }
+};
+
+RandomSpheres randomSpheres(uint32_t seed) {
+    const RectLight light = test::paperLight();
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u01(0.0, 1.0);
+    RandomSpheres out;
+    double sum = 0.0;
     for (int scene = 0; scene < 20; ++scene) {
         const int count = 1 + scene % 8;
         std::vector<AnalyticSphere> spheres;
@@ -165,26 +177,55 @@ TEST_CASE("coverage: random scenes of analytic spheres, every error within its b
             const double full = unoccludedFormFactor(light, r);
             const Estimate e = contourIntegral(r, light, q);
             const double err = std::abs(e.formFactor - exact);
-            CAPTURE(scene, k, r.point.x, r.point.y, exact, e.formFactor, e.errorBound, full);
-            CHECK(err <= e.errorBound + 1e-12);
-            worst = std::max(worst, err / full);
+            if (err > e.errorBound + 1e-12) ++out.violations;
+            out.worst = std::max(out.worst, err / full);
             sum += err / full;
-            errors.push_back(err / full);
-            bounds.push_back(e.errorBound / full);
+            out.errors.push_back(err / full);
+            out.bounds.push_back(e.errorBound / full);
         }
     }
-    const double mean = sum / double(errors.size());
-    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
-    std::nth_element(bounds.begin(), bounds.begin() + bounds.size() / 2, bounds.end());
-    const double medianError = errors[errors.size() / 2], medianBound = bounds[bounds.size() / 2];
-    CAPTURE(worst, mean, medianError, medianBound);
-    WARN("random spheres: max error " << worst * 100 << "%, mean " << mean * 100
+    out.mean = sum / double(out.errors.size());
+    return out;
+}
+
+}  // namespace
+
+TEST_CASE("coverage: random scenes of analytic spheres, every error within its bound",
+          "[aci][coverage]") {
+    const RandomSpheres r = randomSpheres(20261126);
+    const double medianError = r.median(r.errors), medianBound = r.median(r.bounds);
+    CAPTURE(r.worst, r.mean, medianError, medianBound);
+    WARN("random spheres: max error " << r.worst * 100 << "%, mean " << r.mean * 100
                                       << "%, median error " << medianError * 100
                                       << "%, median bound " << medianBound * 100 << "%");
-    // Measured at this commit: max 0.92%, mean 0.082% (the paper's method on the same points:
-    // max 16.9%, mean 1.03%). The targets of 0.5% and 0.05% are not met yet (docs/estimator.md).
-    CHECK(worst <= 0.02);
-    CHECK(mean <= 0.0015);
+    CHECK(r.violations == 0);
+    // Measured at this commit: max 0.58%, mean 0.047%, median bound 1.6% (the paper's method
+    // on the same points: max 16.9%, mean 1.03%). The target maximum of 0.5% is not met yet
+    // (docs/estimator.md); the mean target of 0.05% is.
+    CHECK(r.worst <= 0.0075);
+    CHECK(r.mean <= 0.0005);
+}
+
+TEST_CASE("coverage: random sphere scenes from five more seeds", "[aci][coverage]") {
+    // 1,000 more points from five other seeds. Seeds 2, 3, 5 and 7 showed the failures fixed
+    // at this commit (a far Newton step taken as a vertex, arcs past the light's border,
+    // junctions of two silhouettes, a side crossed three times); seed 11 was only measured.
+    int violations = 0;
+    double worst = 0.0, meanSum = 0.0;
+    const uint32_t seeds[] = {2, 3, 5, 7, 11};
+    for (uint32_t seed : seeds) {
+        const RandomSpheres r = randomSpheres(seed);
+        violations += r.violations;
+        worst = std::max(worst, r.worst);
+        meanSum += r.mean;
+        WARN("seed " << seed << ": max error " << r.worst * 100 << "%, mean " << r.mean * 100
+                     << "%, bound violations " << r.violations);
+    }
+    // Measured at this commit: max 0.56%, mean 0.051%, one point of 1,000 whose error (0.50%)
+    // exceeds its bound (0.25%): the bound is not yet proven (docs/estimator.md).
+    CHECK(worst <= 0.0075);
+    CHECK(meanSum / 5.0 <= 0.0007);
+    CHECK(violations <= 1);
 }
 
 TEST_CASE("coverage: a point whose first ray's disc covers the light needs one ray",

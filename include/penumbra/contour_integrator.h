@@ -221,6 +221,7 @@ private:
     std::vector<Leaf> mLeaves;       // coverage: the last pass's leaves
     std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
     std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
+    std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     uint32_t mGeneration = 0;
 };
 
