@@ -1113,7 +1113,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         est.dg = lat.dg / (2.0 * kPi);
         est.formFactor = glm::dot(est.g, r.normal);
         for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
-        est.errorBound = 0.0;
+        est.errorBound = mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
         est.counts = lat.counts;
         return est;
     }
@@ -1162,7 +1162,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             }
         }
         if (!again) {
-            lat.bound += lat.finalUncoveredFormFactor();
+            if (mSettings.errorBound) lat.bound += lat.finalUncoveredFormFactor();
             break;
         }
     }
@@ -1177,7 +1177,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     est.dg = lat.dg / (2.0 * kPi);
     est.formFactor = glm::dot(est.g, r.normal);
     for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
-    if (mSettings.coverage) est.errorBound = lat.bound;
+    if (mSettings.coverage && mSettings.errorBound) est.errorBound = lat.bound;
     est.counts = lat.counts;
     return est;
 }

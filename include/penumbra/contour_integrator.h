@@ -88,6 +88,10 @@ struct AciSettings {
     /// With coverage: at most this many coverage rays per evaluation; what stays uncovered then
     /// goes into the error bound (Estimate::errorBound) as its whole form factor.
     int maxCoverageRays = 48;
+    /// With coverage: compute Estimate::errorBound (off: NaN). The bound's last step, counting
+    /// what stayed uncovered cell by cell, costs about a third of a render's time on scenes of
+    /// small obstacles, so renders ask for it only with --aov-error-bound.
+    bool errorBound = true;
     /// When set, every traced shadow ray's target is appended (tests use it to prove that no
     /// ray is traced twice).
     std::vector<Vec3>* rayLog = nullptr;

@@ -202,6 +202,7 @@ int runRender(const RenderOptions& o) {
     settings.aci.steps = o.aciSteps;
     applyAciMode(settings.aci, aciMode);
     settings.aci.gradient = !o.aovGradient.empty();
+    settings.aci.errorBound = !o.aovErrorBound.empty();
     settings.maxSpan = o.maxSpan;
     settings.mc.samples = o.samples;
     settings.mc.threshold = o.mcThreshold;
