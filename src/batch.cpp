@@ -27,6 +27,7 @@
 #include <sstream>
 
 #include <tbb/info.h>
+#include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
 
@@ -1138,6 +1139,10 @@ std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector
     // worker on its own job; a single big job gets every worker on its rows once the other
     // runners find the queue empty.
     const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
+    // More threads than cores, when asked for: raise TBB's worker limit (see render()).
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                              std::max<size_t>(threads, tbb::global_control::active_value(
+                                                            tbb::global_control::max_allowed_parallelism)));
     tbb::task_arena arena(threads);
     // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
     const char forkKey = 0, joinKey = 0;

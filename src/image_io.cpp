@@ -1,4 +1,5 @@
 #include "penumbra/image_io.h"
+#include "penumbra/output_files.h"
 
 #include <unistd.h>
 
@@ -26,17 +27,6 @@ std::string lowerExtension(const std::string& path) {
     std::transform(ext.begin(), ext.end(), ext.begin(),
                    [](unsigned char c) { return char(std::tolower(c)); });
     return ext;
-}
-
-// A name in the same directory as `path` (so that rename() stays on one file system and is
-// atomic), hidden, unique per process and call, with the same extension.
-std::string temporaryName(const std::string& path) {
-    static std::atomic<unsigned> counter{0};
-    size_t slash = path.find_last_of('/');
-    std::string dir = slash == std::string::npos ? "" : path.substr(0, slash + 1);
-    std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
-    return dir + "." + base + ".tmp-" + std::to_string(::getpid()) + "-" +
-           std::to_string(counter++) + lowerExtension(path);
 }
 
 std::vector<std::string> channelNames(int channels) {
@@ -71,7 +61,7 @@ ImageFormat imageFormatFor(const std::string& path, const std::string& flag) {
 }
 
 void writeImage(const std::string& path, const Image& image, const ImageMetadata& metadata,
-                const std::string& flag) {
+                const std::string& flag, const std::string& stagedFile) {
     ImageFormat format = imageFormatFor(path, flag);
     if (channelNames(image.channels).empty() || image.width < 1 || image.height < 1 ||
         image.data.size() != size_t(image.width) * image.height * image.channels) {
@@ -80,7 +70,7 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
                                  std::to_string(image.height) + " x " +
                                  std::to_string(image.channels) + ")");
     }
-    const std::string tmp = temporaryName(path);
+    const std::string tmp = stagedFile.empty() ? temporaryPathFor(path) : stagedFile;
     auto fail = [&](const std::string& why) {
         std::remove(tmp.c_str());
         throw std::runtime_error("cannot write '" + path + "': " + why);
@@ -118,6 +108,7 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
     }
     if (!out->close()) fail(out->geterror());
     out.reset();
+    if (!stagedFile.empty()) return;  // the caller renames it (OutputSet::commit)
     if (std::rename(tmp.c_str(), path.c_str()) != 0) fail(std::strerror(errno));
 }
 
@@ -125,6 +116,28 @@ Image readImage(const std::string& path) {
     auto in = OIIO::ImageInput::open(path);
     if (!in) throw std::runtime_error("cannot read '" + path + "': " + OIIO::geterror());
     const OIIO::ImageSpec& spec = in->spec();
+    // What the header claims is checked before anything is allocated: a small compressed file
+    // can declare billions of pixels.
+    {
+        const double bytes = double(spec.width) * double(spec.height) * double(spec.nchannels) * 4.0;
+        double limit = 256.0 * 1024.0 * 1024.0 * 1024.0;
+        const long pages = ::sysconf(_SC_PHYS_PAGES), pageSize = ::sysconf(_SC_PAGE_SIZE);
+        if (pages > 0 && pageSize > 0) limit = 0.25 * double(pages) * double(pageSize);
+        if (spec.width < 1 || spec.height < 1 || spec.nchannels < 1 || spec.depth > 1) {
+            throw std::runtime_error("cannot read '" + path + "': not a 2D image (" +
+                                     std::to_string(spec.width) + " x " + std::to_string(spec.height) +
+                                     " x " + std::to_string(spec.nchannels) + ")");
+        }
+        if (bytes > limit) {
+            char text[160];
+            std::snprintf(text, sizeof text,
+                          "%d x %d pixels x %d channels would need %.1f GiB as floats, over the "
+                          "limit of %.1f GiB (a quarter of this machine's memory)",
+                          spec.width, spec.height, spec.nchannels, bytes / 1073741824.0,
+                          limit / 1073741824.0);
+            throw std::runtime_error("cannot read '" + path + "': " + text);
+        }
+    }
     Image image(spec.width, spec.height, spec.nchannels);
     if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, image.data.data())) {
         std::string why = in->geterror();

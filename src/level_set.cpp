@@ -1,6 +1,8 @@
 #include "penumbra/level_set.h"
+#include "penumbra/output_files.h"
 
 #include <openvdb/io/File.h>
+#include <openvdb/io/GridDescriptor.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/Interpolation.h>
@@ -10,9 +12,15 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cmath>
+#include <limits>
+#include <vector>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iomanip>
 #include <mutex>
 #include <sstream>
 #include <stdexcept>
@@ -139,6 +147,34 @@ LevelSetPtr makeBoxLevelSet(const Vec3& lo, const Vec3& hi, double voxelSize,
 
 namespace {
 
+/// The median, over up to about 4,000 active voxels within a voxel of the surface, of the
+/// world-space gradient magnitude of the values (central differences); NaN when none is found.
+double medianGradientNearSurface(const openvdb::FloatGrid& grid) {
+    const double voxel = grid.voxelSize()[0];
+    const openvdb::Index64 active = grid.activeVoxelCount();
+    const openvdb::Index64 stride = std::max<openvdb::Index64>(1, active / 20000);
+    auto acc = grid.getConstAccessor();
+    std::vector<double> slopes;
+    openvdb::Index64 k = 0;
+    for (auto it = grid.cbeginValueOn(); it && slopes.size() < 4000; ++it) {
+        if (!it.isVoxelValue() || (k++ % stride) != 0) continue;
+        if (!(std::abs(*it) < voxel)) continue;
+        const openvdb::Coord c = it.getCoord();
+        double g2 = 0.0;
+        for (int axis = 0; axis < 3; ++axis) {
+            openvdb::Coord a = c, b = c;
+            a[axis] += 1;
+            b[axis] -= 1;
+            const double d = (double(acc.getValue(a)) - double(acc.getValue(b))) / (2.0 * voxel);
+            g2 += d * d;
+        }
+        slopes.push_back(std::sqrt(g2));
+    }
+    if (slopes.empty()) return std::numeric_limits<double>::quiet_NaN();
+    std::nth_element(slopes.begin(), slopes.begin() + slopes.size() / 2, slopes.end());
+    return slopes[slopes.size() / 2];
+}
+
 /// Turns one grid read from `file` into a LevelSet, or explains why it is not usable.
 LevelSetPtr acceptGrid(const openvdb::GridBase::Ptr& base, const std::string& file,
                        const std::string& where) {
@@ -169,8 +205,65 @@ LevelSetPtr acceptGrid(const openvdb::GridBase::Ptr& base, const std::string& fi
     if (grid->activeVoxelCount() == 0) {
         throw InputError(file, where, name + " has no active voxels");
     }
+    // A level set's values are distances: |grad phi| = 1 near the surface. A grid whose
+    // transform was scaled without its values is not, and every distance the estimator trusts
+    // (certificates, Newton steps) would be off by that factor.
+    const double slope = medianGradientNearSurface(*grid);
+    if (std::isfinite(slope) && (slope < 0.7 || slope > 1.4)) {
+        std::ostringstream msg;
+        msg << name << " is not a distance field: |grad phi| is " << std::setprecision(2)
+            << slope
+            << " near its surface (1 for a level set; was its transform scaled without its "
+               "values?); multiply its values by "
+            << 1.0 / slope << " or rebuild it as a level set (OpenVDB's levelSetRebuild)";
+        throw InputError(file, where, msg.str());
+    }
     return std::make_shared<const LevelSet>(grid);
 }
+
+}  // namespace
+
+namespace {
+
+/// Reads a .vdb file's header and grid descriptors the way openvdb::io::File does (with
+/// OpenVDB's own readers), to check, before any tree is read, that every grid lies inside the
+/// file: a truncated file otherwise has OpenVDB read garbage counts and allocate without bound.
+class VdbHeaderProbe : public openvdb::io::Archive {
+public:
+    /// Throws InputError when the file is shorter than its descriptors say.
+    void check(const std::string& file, const std::string& where) {
+        std::ifstream is(file, std::ios::binary);
+        if (!is) throw InputError(file, where, "cannot read VDB file: cannot open it");
+        is.seekg(0, std::ios::end);
+        const int64_t size = static_cast<int64_t>(is.tellg());
+        is.seekg(0, std::ios::beg);
+        readHeader(is);
+        openvdb::io::setVersion(is, libraryVersion(), fileVersion());
+        openvdb::MetaMap meta;
+        meta.readMeta(is);
+        if (!is) throw InputError(file, where, "cannot read VDB file: truncated header");
+        if (!inputHasGridOffsets()) return;  // old files: nothing to check against
+        const int32_t count = readGridCount(is);
+        if (!is || count < 0 || int64_t(count) > size) {
+            throw InputError(file, where, "cannot read VDB file: corrupt grid count");
+        }
+        for (int32_t i = 0; i < count; ++i) {
+            openvdb::io::GridDescriptor gd;
+            gd.read(is);
+            if (!is) throw InputError(file, where, "cannot read VDB file: truncated grid list");
+            const int64_t grid = gd.getGridPos(), block = gd.getBlockPos(), end = gd.getEndPos();
+            if (!(0 < grid && grid <= block && block <= end && end <= size)) {
+                std::ostringstream msg;
+                msg << "cannot read VDB file: grid " << i << " ('"
+                    << openvdb::io::GridDescriptor::nameAsString(gd.uniqueName())
+                    << "') claims bytes up to " << end << " but the file has " << size
+                    << " (truncated or corrupt)";
+                throw InputError(file, where, msg.str());
+            }
+            gd.seekToEnd(is);
+        }
+    }
+};
 
 }  // namespace
 
@@ -180,6 +273,13 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
     std::error_code ec;
     if (!std::filesystem::is_regular_file(file, ec)) {
         throw InputError(file, where, "cannot read VDB file: no such file");
+    }
+    try {
+        VdbHeaderProbe().check(file, where);
+    } catch (const InputError&) {
+        throw;
+    } catch (const std::exception& e) {
+        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
     }
     openvdb::GridPtrVecPtr grids;
     try {
@@ -204,6 +304,8 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
         vdb.close();
     } catch (const InputError&) {
         throw;
+    } catch (const std::bad_alloc&) {
+        throw std::runtime_error(file + ": out of memory reading the VDB file");
     } catch (const std::exception& e) {
         throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
     }
@@ -252,9 +354,7 @@ void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& gri
     }
     // Write beside the target and rename, so a reader never sees a half-written file. The
     // temporary name is unique per process and call, so concurrent writers do not collide.
-    static std::atomic<unsigned> counter{0};
-    const std::string tmp = file + ".tmp." + std::to_string(::getpid()) + "." +
-                            std::to_string(counter++);
+    const std::string tmp = temporaryPathFor(file);
     try {
         openvdb::io::File vdb(tmp);
         vdb.write(out);

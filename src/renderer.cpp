@@ -15,6 +15,7 @@
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
+#include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
 #include "penumbra/camera.h"
@@ -790,6 +791,11 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     if (settings.threads < 0) {
         renderRows();
     } else {
+        // More threads than cores, when asked for: raise TBB's worker limit so that it neither
+        // ignores the request nor prints a warning of its own (also under --quiet).
+        tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                                  std::max<size_t>(threads, tbb::global_control::active_value(
+                                                                tbb::global_control::max_allowed_parallelism)));
         tbb::task_arena arena(threads);
         arena.execute(renderRows);
     }

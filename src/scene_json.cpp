@@ -44,6 +44,8 @@ constexpr double kMaxIndexCoordinate = double(1 << 24);
 constexpr double kMinFeatureVoxels = 1.5;
 // sin(angle) between edge_u and edge_v below which a light counts as degenerate.
 constexpr double kMinEdgeSine = 1e-9;
+/// The largest magnitude of any number in a scene file (docs/scene-format.md).
+constexpr double kMaxMagnitude = 1e12;
 
 // ---------------------------------------------------------------------------------------------
 // Small text helpers
@@ -193,6 +195,9 @@ std::string bytesText(double bytes) {
 struct Context {
     std::string file;     ///< for messages
     std::string baseDir;  ///< resolves relative paths
+    /// Every file the scene names (meshes, .vdb files), as read, with the JSON pointer naming
+    /// it: Scene::inputFiles.
+    mutable std::vector<std::pair<std::string, std::string>> inputs;
 };
 
 class Node {
@@ -216,6 +221,12 @@ class Node {
         if (!mValue->is_number()) fail("expected a number, got " + typeName(*mValue));
         const double x = mValue->get<double>();
         if (!std::isfinite(x)) fail("expected a finite number, got " + numberText(x));
+        // Beyond this, squares of coordinates overflow and single-precision images saturate:
+        // no scene value (coordinate, size, radiance) is meaningful there.
+        if (std::abs(x) > kMaxMagnitude) {
+            fail("is " + mValue->dump() + ", beyond the range of scene values (magnitude at most "
+                 "1e12)");
+        }
         return x;
     }
 
@@ -650,8 +661,12 @@ std::string existingFile(const Node& fileNode) {
     if (std::filesystem::is_directory(path, ec)) {
         fileNode.fail(inQuotes(file) + resolved + " is a directory, not a file");
     }
-    if (!std::filesystem::is_regular_file(path, ec)) {
+    if (!std::filesystem::exists(path, ec)) {
         fileNode.fail("no such file " + inQuotes(file) + resolved);
+    }
+    if (!std::filesystem::is_regular_file(path, ec)) {
+        // A FIFO or device would block the reader or never end.
+        fileNode.fail(inQuotes(file) + resolved + " is not a regular file");
     }
     // Checked here so that a permission problem is reported as such (and at this pointer),
     // not as a parse error of an empty file by the reader.
@@ -659,6 +674,7 @@ std::string existingFile(const Node& fileNode) {
         fileNode.fail("cannot open " + inQuotes(file) + resolved + " for reading: " +
                       std::strerror(errno));
     }
+    fileNode.context().inputs.emplace_back(path, fileNode.pointer());
     return path;
 }
 
@@ -1162,6 +1178,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     const Clock::time_point start = Clock::now();
     for (ObstaclePlan& p : plans) buildObstacles(p, ctx.file, scene.obstacles, scene.build);
     scene.build.seconds = secondsSince(start);
+    scene.inputFiles = ctx.inputs;
     return scene;
 }
 
@@ -1170,7 +1187,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
 // ---------------------------------------------------------------------------------------------
 
 Scene parseScene(const std::string& jsonText, const std::string& file, const std::string& baseDir) {
-    const Context ctx{file, baseDir};
+    const Context ctx{file, baseDir, {}};
     const Json root = parseText(jsonText, file);
     return parseDocument(root, ctx);
 }
@@ -1179,6 +1196,11 @@ Scene loadScene(const std::string& path) {
     std::error_code ec;
     if (std::filesystem::is_directory(path, ec)) {
         throw InputError(path, "", "is a directory, not a scene file");
+    }
+    if (!std::filesystem::exists(path, ec)) throw InputError(path, "", "no such file");
+    if (!std::filesystem::is_regular_file(path, ec)) {
+        // A FIFO would block the reader (or never end), a device be read forever.
+        throw InputError(path, "", "is not a regular file");
     }
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path, "", "cannot open the scene file");
@@ -1352,6 +1374,16 @@ std::vector<LevelSetPtr> Scene::obstacleLevelSets() const {
         }
         const double voxel = o.voxelSize > 0.0 ? o.voxelSize : levelSet.voxelSize;
         const double halfWidth = o.halfWidth > 0.0 ? o.halfWidth : levelSet.halfWidth;
+        // Analytic shapes were never voxelized while loading: estimate before building.
+        const double need = estimateBuildBytes(node, voxel, halfWidth);
+        const double limit = defaultMemoryLimitBytes();
+        if (need > limit) {
+            throw InputError(file, "",
+                             "obstacle '" + name + "' would need ~" + bytesText(need) +
+                                 " as a level set at voxel_size " + numberText(voxel) +
+                                 ", over the limit of " + bytesText(limit) +
+                                 "; give it a larger voxel_size to bake it");
+        }
         out.push_back(buildLevelSet(node, voxel, halfWidth, name));
     }
     return out;

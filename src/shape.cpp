@@ -373,6 +373,16 @@ double estimateOf(const ShapeNode& node, const Similarity& parentToWorld, double
     }
     const double area = areaOf(node, parentToWorld.scale);
     double bytes = bandBytes(area, voxel, band);
+    // A band wide against the shape holds more than area x width: the outer offset of a convex
+    // body adds (Steiner) its mean width times pi w^2 and 4/3 pi w^3, bounded here by the
+    // box around it.
+    const Box3 b = boundsOf(node, parentToWorld);
+    if (!b.empty() && std::isfinite(b.hi.x - b.lo.x + b.hi.y - b.lo.y + b.hi.z - b.lo.z)) {
+        const Vec3 d = b.hi - b.lo;
+        const double w = band * voxel;
+        const double extra = kPi * (d.x + d.y + d.z) * w * w + 4.0 / 3.0 * kPi * w * w * w;
+        bytes += extra / (voxel * voxel * voxel) * kBytesPerBandVoxel;
+    }
     if (const auto* m = std::get_if<MeshShape>(&node.kind); m && m->thickness > 0.0) {
         // The unsigned distance is built wider by half the thickness, then rebuilt.
         bytes += bandBytes(area, voxel, band + 0.5 * m->thickness * toWorld.scale / voxel) +

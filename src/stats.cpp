@@ -1,5 +1,7 @@
 #include "penumbra/stats.h"
 
+#include "penumbra/output_files.h"
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -71,23 +73,7 @@ std::string RenderStats::toJson() const {
 }
 
 void writeStatsJson(const std::string& path, const RenderStats& stats) {
-    size_t slash = path.find_last_of('/');
-    std::string dir = slash == std::string::npos ? "" : path.substr(0, slash + 1);
-    std::string base = slash == std::string::npos ? path : path.substr(slash + 1);
-    std::string tmp = dir + "." + base + ".tmp-" + std::to_string(::getpid());
-    {
-        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-        if (out) out << stats.toJson();
-        if (!out || !out.flush()) {
-            std::remove(tmp.c_str());
-            throw std::runtime_error("cannot write '" + path + "': " + std::strerror(errno));
-        }
-    }
-    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-        int err = errno;
-        std::remove(tmp.c_str());
-        throw std::runtime_error("cannot write '" + path + "': " + std::strerror(err));
-    }
+    writeTextFileAtomically(path, stats.toJson());
 }
 
 }  // namespace penumbra

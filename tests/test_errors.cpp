@@ -8,10 +8,13 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cctype>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 #include <string>
@@ -20,6 +23,8 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/LevelSetUtil.h>
+
+#include "penumbra/image_io.h"
 
 namespace fs = std::filesystem;
 
@@ -335,14 +340,16 @@ TEST_CASE("E21 absurd resolution: refused with the memory estimate", "[errors]")
                   "ASAN_OPTIONS=allocator_may_return_null=1 timeout 20");
 }
 
-TEST_CASE("E22 unwritable output path", "[errors]") {
+TEST_CASE("E22 output in a directory that does not exist", "[errors]") {
     Case c("e22");
     c.write("scene.json", sceneWith(""));
     c.run("render scene.json -o missing_dir/out.exr -q");
     INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == 1);
-    CHECK_THAT(c.errorLine(), Catch::StartsWith("penumbra: error: ") &&
-                                  Catch::Contains("cannot write 'missing_dir/out.exr'"));
+    CHECK(c.exitCode == 2);  // refused before any work (output_files.h)
+    CHECK_THAT(c.errorLine(),
+               Catch::StartsWith("penumbra: error: -o: ") &&
+                   Catch::Contains("cannot write 'missing_dir/out.exr': directory 'missing_dir' "
+                                   "does not exist"));
     CHECK_FALSE(fs::exists(c.path("missing_dir")));
     CHECK(c.newFiles().empty());
 }
@@ -410,6 +417,211 @@ TEST_CASE("E26 bake: a bad scene leaves the previous .vdb", "[errors]") {
     INFO(readFile(c.path("stderr.txt")));
     CHECK(c.exitCode == 2);
     CHECK_THAT(c.errorLine(), Catch::Contains("scene.json: /lights"));
+    CHECK(readFile(c.path("out.vdb")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Outputs are registered before any work (output_files.h): none may be an input or another
+// output, whatever path names it; a failed run changes no file.
+
+TEST_CASE("E27 an output that is the scene", "[errors]") {
+    Case c("e27");
+    expectRefused(c, sceneWith(""), "--stats scene.json", 2,
+                  {"--stats: 'scene.json' is the scene, which this run reads"});
+    CHECK(readFile(c.path("scene.json")) == sceneWith(""));
+}
+
+TEST_CASE("E28 an output that is a file the scene reads", "[errors]") {
+    Case c("e28");
+    writeGrid(c.path("ball.vdb"), smallSphere());
+    const std::string vdb = readFile(c.path("ball.vdb"));
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "ball.vdb"}])"),
+                  "--stats ball.vdb", 2,
+                  {"--stats: 'ball.vdb' is /obstacles/0/file of scene.json, which this run reads"});
+    CHECK(readFile(c.path("ball.vdb")) == vdb);
+    // bake may not write over it either
+    c.run("bake scene.json -o ball.vdb");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("-o: 'ball.vdb' is /obstacles/0/file"));
+    CHECK(readFile(c.path("ball.vdb")) == vdb);
+}
+
+TEST_CASE("E29 two outputs that are one file, through a symlink or an absolute path",
+          "[errors]") {
+    Case c("e29");
+    fs::create_directory_symlink(".", c.path("link"));
+    expectRefused(c, sceneWith(""), "--aov-ff link/out.exr", 2,
+                  {"--aov-ff: 'link/out.exr' is also written by -o (as 'out.exr')"});
+    expectRefused(c, sceneWith(""), "--aov-mask " + c.path("out.exr").string(), 2,
+                  {"--aov-mask: '" + c.path("out.exr").string() + "' is also written by -o"});
+    expectRefused(c, sceneWith(""), "--stats out.exr", 2, {"--stats: 'out.exr' has an image "
+                                                          "extension; statistics are JSON"});
+}
+
+TEST_CASE("E30 compare: an error map over one of its inputs", "[errors]") {
+    Case c("e30");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o a.exr -q");
+    REQUIRE(c.exitCode == 0);
+    const std::string a = readFile(c.path("a.exr"));
+    c.run("compare a.exr a.exr --error-map a.exr");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("--error-map: 'a.exr' is TEST, which this run reads"));
+    CHECK(readFile(c.path("a.exr")) == a);
+    CHECK(c.newFiles().empty());
+}
+
+TEST_CASE("E31 a failed write leaves every output as it was", "[errors]") {
+    Case c("e31");
+    // The AOV's name fits the file system but its temporary's does not: the write fails after
+    // the render (exit 1), and the image written before it must not replace out.exr.
+    const std::string longName = std::string(236, 'f') + ".exr";
+    c.write("scene.json", sceneWith(""));
+    c.write("out.exr", kPrevious);
+    c.run("render scene.json -o out.exr -q --aov-ff " + longName);
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 1);
+    CHECK_THAT(c.errorLine(), Catch::Contains("cannot write '" + longName + "'"));
+    CHECK(readFile(c.path("out.exr")) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
+TEST_CASE("E32 a FIFO given as the scene or as a .vdb file", "[errors]") {
+    Case c("e32");
+    REQUIRE(::mkfifo(c.path("fifo.json").c_str(), 0600) == 0);
+    c.write("out.exr", kPrevious);
+    c.run("render fifo.json -o out.exr -q", "timeout 20");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("fifo.json: is not a regular file"));
+    REQUIRE(::mkfifo(c.path("fifo.vdb").c_str(), 0600) == 0);
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "fifo.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0/file: 'fifo.vdb'", "is not a regular file"},
+                  "timeout 20");
+}
+
+TEST_CASE("E33 a truncated .vdb file is refused before OpenVDB reads its trees", "[errors]") {
+    Case c("e33");
+    writeGrid(c.path("full.vdb"), smallSphere());
+    const std::string full = readFile(c.path("full.vdb"));
+    // Cut a little after the header: OpenVDB itself would read garbage counts and allocate
+    // gigabytes. Under a 2 GiB address-space limit the refusal must come at once.
+    c.write("cut.vdb", full.substr(0, 1000));
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "cut.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0: cut.vdb: cannot read VDB file: grid 0 ('ball') "
+                   "claims bytes up to",
+                   "truncated or corrupt"},
+                  "ulimit -v 2097152;");
+}
+
+TEST_CASE("E34 a level set whose values are not distances", "[errors]") {
+    Case c("e34");
+    openvdb::FloatGrid::Ptr grid = smallSphere();
+    // Scaled transform, values left as they were: |grad phi| becomes 1/4.
+    grid->setTransform(openvdb::math::Transform::createLinearTransform(0.2));
+    writeGrid(c.path("scaled.vdb"), grid);
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "scaled.vdb"}])"), "", 2,
+                  {"scene.json: /obstacles/0", "scaled.vdb", "grid 'ball' is not a distance "
+                   "field: |grad phi| is 0.25"});
+}
+
+TEST_CASE("E35 numbers beyond the range of scene values", "[errors]") {
+    Case c("e35");
+    expectRefused(c, "{\"camera\": {\"eye\": [1e308, 0, 0], \"width\": 8, \"height\": 8}, " +
+                         kBody + "}",
+                  "", 2, {"scene.json: /camera/eye/0: is 1e+308, beyond the range of scene "
+                          "values (magnitude at most 1e12)"});
+    expectRefused(c, "{" + kCamera + R"(, "lights": [{"corner": [-1,-1,4], "edge_u": [0,2,0],
+                  "edge_v": [2,0,0], "radiance": [1e308, 1, 1]}]})",
+                  "", 2, {"scene.json: /lights/0/radiance/0: is 1e+308"});
+    // probe: coordinates and normals alike
+    c.write("scene.json", sceneWith(""));
+    c.write("points.csv", "x,y,z,nx,ny,nz\n1e308,0,0,0,0,1\n");
+    c.run("probe scene.json < points.csv");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("<stdin>: line 2, column x: '1e308' is beyond the "
+                                              "range of scene values"));
+}
+
+TEST_CASE("E36 compare: an image with NaN, and one that claims billions of pixels",
+          "[errors]") {
+    Case c("e36");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o a.exr -q");
+    REQUIRE(c.exitCode == 0);
+    {
+        // A copy of a.exr whose pixels are NaN.
+        penumbra::Image img = penumbra::readImage(c.path("a.exr").string());
+        for (float& v : img.data) v = std::numeric_limits<float>::quiet_NaN();
+        penumbra::writeImage(c.path("nan.exr").string(), img);
+    }
+    c.run("compare a.exr nan.exr");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("nan.exr: REF: holds a non-finite value (nan) at "
+                                              "pixel 0, 0"));
+    // A PNG whose header declares 30000 x 30000 pixels (its data is a few bytes): refused from
+    // the header, before any allocation.
+    {
+        auto crc = [](const std::string& bytes) {
+            uint32_t c = 0xffffffffu;
+            for (unsigned char b : bytes) {
+                c ^= b;
+                for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xedb88320u & (0u - (c & 1u)));
+            }
+            return c ^ 0xffffffffu;
+        };
+        auto be32 = [](uint32_t v) {
+            return std::string{char(v >> 24), char(v >> 16), char(v >> 8), char(v)};
+        };
+        auto chunk = [&](const std::string& type, const std::string& data) {
+            return be32(uint32_t(data.size())) + type + data + be32(crc(type + data));
+        };
+        const std::string ihdr = be32(30000) + be32(30000) + std::string{8, 2, 0, 0, 0};
+        const std::string png = std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) +
+                                chunk("IDAT", std::string("\x78\x9c\x03\x00\x00\x00\x00\x01", 8)) +
+                                chunk("IEND", "");
+        c.write("huge.png", png);
+    }
+    c.run("compare huge.png huge.png", "ulimit -v 4194304;");
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("huge.png: TEST: cannot read the image") &&
+                                  Catch::Contains("30000 x 30000 pixels x 3 channels would need"));
+}
+
+TEST_CASE("E37 temporaries of dead processes are cleaned, a live process's are kept",
+          "[errors]") {
+    Case c("e37");
+    char host[256] = {};
+    ::gethostname(host, sizeof(host) - 1);
+    std::string tag(host);
+    for (char& ch : tag)
+        if (!(std::isalnum(static_cast<unsigned char>(ch)) || ch == '_')) ch = '_';
+    if (tag.empty()) tag = "host";
+    // A pid that is no process (above the kernel's pid_max of 4194304) and this test's own.
+    const std::string dead = ".out.exr.tmp-" + tag + "-999999999-0.exr";
+    const std::string live = ".out.exr.tmp-" + tag + "-" + std::to_string(::getpid()) + "-0.exr";
+    const std::string otherHost = ".out.exr.tmp-elsewhere-999999999-0.exr";
+    c.write(dead, "x");
+    c.write(live, "x");
+    c.write(otherHost, "x");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o out.exr -q");
+    CHECK(c.exitCode == 0);
+    CHECK_FALSE(fs::exists(c.path(dead)));
+    CHECK(fs::exists(c.path(live)));
+    CHECK(fs::exists(c.path(otherHost)));
+}
+
+TEST_CASE("E38 bake: an analytic obstacle too large to voxelize", "[errors]") {
+    Case c("e38");
+    c.write("scene.json", "{" + kBody + R"(, "obstacles": [{"type": "box", "center": [0,0,1],
+        "size": [1000, 1000, 1000], "analytic": true}]})");
+    c.write("out.vdb", kPrevious);
+    c.run("bake scene.json -o out.vdb", "ulimit -v 4194304;");
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == 2);
+    CHECK_THAT(c.errorLine(), Catch::Contains("scene.json: obstacle 'obstacle_0' would need ~") &&
+                                  Catch::Contains("give it a larger voxel_size to bake it"));
     CHECK(readFile(c.path("out.vdb")) == kPrevious);
     CHECK(c.newFiles().empty());
 }

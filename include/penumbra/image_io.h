@@ -42,9 +42,11 @@ ImageFormat imageFormatFor(const std::string& path, const std::string& flag = "-
 
 /// Writes `image` (1, 3 or 4 channels) to `path`, atomically. Throws InputError (see
 /// imageFormatFor) for an unknown extension and std::runtime_error when the file cannot be
-/// written; in both cases no file is left at `path` or at the temporary name.
+/// written; in both cases no file is left at `path` or at the temporary name. With
+/// `stagedFile` (OutputSet::stage), the image goes to that file instead and is not renamed:
+/// `path` then only picks the format and names the file in messages.
 void writeImage(const std::string& path, const Image& image, const ImageMetadata& metadata = {},
-                const std::string& flag = "-o");
+                const std::string& flag = "-o", const std::string& stagedFile = "");
 
 /// Reads an image as linear float values (PNG values are decoded from sRGB, alpha kept).
 /// Throws std::runtime_error when the file cannot be read.

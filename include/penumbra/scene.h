@@ -95,6 +95,9 @@ struct Scene {
     LevelSetSettings levelSet;
     Rgb background{0.0};
     BuildReport build;  ///< filled by loadScene / parseScene
+    /// Every file the scene names (meshes, .vdb files) as it was read, with the JSON pointer
+    /// that names it; a run must not write over any of them (output_files.h).
+    std::vector<std::pair<std::string, std::string>> inputFiles;
 
     /// Index of the light named `name`; with an empty name, the only light. Throws InputError
     /// when there is no such light or the choice is ambiguous.

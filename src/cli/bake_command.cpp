@@ -11,6 +11,7 @@
 
 #include "cli/commands.h"
 #include "penumbra/error.h"
+#include "penumbra/output_files.h"
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"
 
@@ -45,7 +46,13 @@ void checkOutput(const std::string& output) {
 
 int runBake(const BakeOptions& o) {
     checkOutput(o.output);
+    OutputSet outputs;  // only for its checks: writeLevelSets writes atomically itself
+    outputs.addInput(o.scene, "the scene");
+    outputs.addOutput(o.output, "-o");
     const Scene scene = loadScene(o.scene);
+    for (const auto& [path, pointer] : scene.inputFiles) {
+        outputs.addInput(path, pointer + " of " + o.scene);
+    }
     if (scene.obstacles.empty()) {
         throw InputError(o.scene, "/obstacles", "the scene has no obstacles to bake");
     }

@@ -2,6 +2,7 @@
 // difference between two images in 8-bit units (255 x the linear difference): mean absolute,
 // RMSE and maximum over every pixel, and the same over a mask's pixels (the renderer's
 // --aov-mask: where shadow rays were cast). All the arithmetic is in compare.h.
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -13,6 +14,7 @@
 #include "penumbra/compare.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/output_files.h"
 
 namespace penumbra::cli {
 
@@ -25,14 +27,28 @@ struct CompareOptions {
 };
 
 Image load(const std::string& path, const std::string& what) {
-    if (!std::filesystem::is_regular_file(path)) {
-        throw InputError(path, what, "no such image file");
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) throw InputError(path, what, "no such image file");
+    if (!std::filesystem::is_regular_file(path, ec)) {
+        throw InputError(path, what, "not a regular file");
     }
+    Image image;
     try {
-        return readImage(path);
+        image = readImage(path);
     } catch (const std::exception& e) {
         throw InputError(path, what, std::string("cannot read the image: ") + e.what());
     }
+    // A NaN compares false with everything: it would vanish from the maximum and the mean.
+    for (size_t i = 0; i < image.data.size(); ++i) {
+        if (std::isfinite(image.data[i])) continue;
+        const size_t pixel = i / size_t(image.channels);
+        throw InputError(path, what,
+                         "holds a non-finite value (" + std::to_string(image.data[i]) +
+                             ") at pixel " + std::to_string(pixel % size_t(image.width)) + ", " +
+                             std::to_string(pixel / size_t(image.width)) + ": no difference can "
+                             "be measured");
+    }
+    return image;
 }
 
 nlohmann::json toJson(const DifferenceStats& s) {
@@ -41,7 +57,14 @@ nlohmann::json toJson(const DifferenceStats& s) {
 
 int runCompare(const CompareOptions& o) {
     if (!o.errorMap.empty()) imageFormatFor(o.errorMap, "--error-map");
-    if (o.errorScale < 0.0) throw InputError("", "--error-scale", "must be >= 0");
+    if (!(o.errorScale >= 0.0) || !std::isfinite(o.errorScale)) {
+        throw InputError("", "--error-scale", "must be a finite number >= 0");
+    }
+    OutputSet outputs;
+    outputs.addInput(o.test, "TEST");
+    outputs.addInput(o.ref, "REF");
+    outputs.addInput(o.mask, "--mask");
+    outputs.addOutput(o.errorMap, "--error-map");
     const Image test = load(o.test, "TEST");
     const Image ref = load(o.ref, "REF");
     Image mask;
@@ -60,11 +83,13 @@ int runCompare(const CompareOptions& o) {
         const ImageMetadata meta = {
             {"ImageDescription", "penumbra compare " + o.test + " " + o.ref},
             {"penumbra:error_scale", std::to_string(scale)}};
+        const std::string staged = outputs.stage(o.errorMap);
         if (imageFormatFor(o.errorMap, "--error-map") == ImageFormat::Exr) {
-            writeImage(o.errorMap, diff, meta, "--error-map");
+            writeImage(o.errorMap, diff, meta, "--error-map", staged);
         } else {
-            writeImage(o.errorMap, heatMap(diff, scale), meta, "--error-map");
+            writeImage(o.errorMap, heatMap(diff, scale), meta, "--error-map", staged);
         }
+        outputs.commit();
     }
 
     if (o.json) {

@@ -4,6 +4,7 @@
 // spent, as CSV on stdout. `--method` picks the estimator: aci (approximate contour
 // integration) or one of the Monte Carlo baselines of monte_carlo.h, which estimate no
 // gradient (their dF columns are 0).
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <iomanip>
@@ -55,7 +56,17 @@ double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
     try {
         size_t used = 0;
         const double v = std::stod(cell, &used);
-        if (used == cell.size() && std::isfinite(v)) return v;
+        if (used == cell.size() && std::isfinite(v)) {
+            // The scene's range (docs/scene-format.md): beyond it squares overflow.
+            if (std::abs(v) > 1e12) {
+                throw InputError("<stdin>", "line " + std::to_string(lineNo) + ", column " + column,
+                                 "'" + cell + "' is beyond the range of scene values (magnitude "
+                                 "at most 1e12)");
+            }
+            return v;
+        }
+    } catch (const InputError&) {
+        throw;
     } catch (const std::exception&) {
     }
     throw InputError("<stdin>", "line " + std::to_string(lineNo) + ", column " + column,
@@ -118,7 +129,10 @@ int runProbe(const ProbeOptions& opt) {
                                  std::to_string(cells.size()));
         double v[6];
         for (int i = 0; i < 6; ++i) v[i] = parseNumber(cells[i], lineNo, kColumns[i]);
-        const Vec3 n(v[3], v[4], v[5]);
+        // Scaled to its largest component first, so that its length cannot overflow.
+        Vec3 n(v[3], v[4], v[5]);
+        const double top = std::max({std::abs(n.x), std::abs(n.y), std::abs(n.z)});
+        if (top > 0.0) n /= top;
         const double len = glm::length(n);
         if (!(len > 0.0))
             throw InputError("<stdin>", "line " + std::to_string(lineNo), "the normal is zero");

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -16,6 +17,7 @@
 #include "cli/commands.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/output_files.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
 
@@ -139,20 +141,21 @@ float maxOf(const Image& img) {
 }
 
 // A scalar AOV: raw values in .exr; in .png a heat map (or grey ramp) scaled to the maximum.
-void writeScalarAov(const std::string& path, const std::string& flag, const Image& aov,
-                    bool heat, const ImageMetadata& metadata) {
+void writeScalarAov(OutputSet& outputs, const std::string& path, const std::string& flag,
+                    const Image& aov, bool heat, const ImageMetadata& metadata) {
+    const std::string staged = outputs.stage(path);
     if (imageFormatFor(path, flag) == ImageFormat::Exr) {
-        writeImage(path, aov, metadata, flag);
+        writeImage(path, aov, metadata, flag, staged);
         return;
     }
     float top = maxOf(aov);
     if (heat) {
-        writeImage(path, heatMap(aov, top), metadata, flag);
+        writeImage(path, heatMap(aov, top), metadata, flag, staged);
         return;
     }
     Image grey = aov;
     for (float& v : grey.data) v = top > 0.0f ? v / top : 0.0f;
-    writeImage(path, grey, metadata, flag);
+    writeImage(path, grey, metadata, flag, staged);
 }
 
 int runRender(const RenderOptions& o) {
@@ -210,7 +213,35 @@ int runRender(const RenderOptions& o) {
     settings.mc.initialDepth = o.mcInitialDepth;
     settings.mc.seed = o.seed;
 
+    // Every file this run writes, checked against each other and the scene before any work,
+    // written to temporaries and renamed together at the end: a failed run changes nothing.
+    OutputSet outputs;
+    outputs.addInput(o.scene, "the scene");
+    outputs.addOutput(o.output, "-o");
+    outputs.addOutput(o.aovRays, "--aov-rays");
+    outputs.addOutput(o.aovFormFactor, "--aov-ff");
+    outputs.addOutput(o.aovGradient, "--aov-gradient");
+    outputs.addOutput(o.aovMask, "--aov-mask");
+    outputs.addOutput(o.aovErrorBound, "--aov-error-bound");
+    if (!o.stats.empty()) {
+        const std::string ext = std::filesystem::path(o.stats).extension().string();
+        if (ext == ".exr" || ext == ".png" || ext == ".EXR" || ext == ".PNG") {
+            throw InputError("", "--stats",
+                             "'" + o.stats + "' has an image extension; statistics are JSON");
+        }
+        outputs.addOutput(o.stats, "--stats");
+    }
+    for (const std::string& path : {o.output, o.aovRays, o.aovFormFactor, o.aovGradient,
+                                    o.aovMask, o.aovErrorBound, o.stats}) {
+        if (path.empty()) continue;
+        const std::string dir = std::filesystem::path(path).parent_path().string();
+        removeStaleTemporaries(dir.empty() ? "." : dir);
+    }
+
     Scene scene = loadScene(o.scene);
+    for (const auto& [path, pointer] : scene.inputFiles) {
+        outputs.addInput(path, pointer + " of " + o.scene);
+    }
     if (!scene.camera) {
         throw InputError(o.scene, "/camera", "the scene has no camera, which rendering needs");
     }
@@ -232,28 +263,31 @@ int runRender(const RenderOptions& o) {
 
     const RenderStats& st = result.stats;
     ImageMetadata metadata = metadataFor(o, settings, st);
-    writeImage(o.output, result.color, metadata, "-o");
+    writeImage(o.output, result.color, metadata, "-o", outputs.stage(o.output));
     if (!o.aovRays.empty()) {
-        writeScalarAov(o.aovRays, "--aov-rays", result.aovs.shadowRays, true, metadata);
+        writeScalarAov(outputs, o.aovRays, "--aov-rays", result.aovs.shadowRays, true, metadata);
     }
     if (!o.aovFormFactor.empty()) {
-        writeScalarAov(o.aovFormFactor, "--aov-ff", result.aovs.formFactor, false, metadata);
+        writeScalarAov(outputs, o.aovFormFactor, "--aov-ff", result.aovs.formFactor, false,
+                       metadata);
     }
     if (!o.aovGradient.empty()) {
-        writeScalarAov(o.aovGradient, "--aov-gradient", result.aovs.gradient, true, metadata);
+        writeScalarAov(outputs, o.aovGradient, "--aov-gradient", result.aovs.gradient, true,
+                       metadata);
     }
     if (!o.aovMask.empty()) {
-        writeScalarAov(o.aovMask, "--aov-mask", result.aovs.mask, false, metadata);
+        writeScalarAov(outputs, o.aovMask, "--aov-mask", result.aovs.mask, false, metadata);
     }
     if (!o.aovErrorBound.empty()) {
-        writeScalarAov(o.aovErrorBound, "--aov-error-bound", result.aovs.errorBound, true,
-                       metadata);
+        writeScalarAov(outputs, o.aovErrorBound, "--aov-error-bound", result.aovs.errorBound,
+                       true, metadata);
     }
     if (!o.stats.empty()) {
         RenderStats withBuild = st;
         withBuild.buildJson = scene.build.toJson();
-        writeStatsJson(o.stats, withBuild);
+        writeTextFile(outputs.stage(o.stats), withBuild.toJson(), o.stats);
     }
+    outputs.commit();
 
     if (!o.quiet) {
         std::printf("penumbra: wrote %s (%dx%d, %s, %d threads, %.2f s): %llu shadow rays, "
