@@ -2,7 +2,6 @@
 #include "penumbra/output_files.h"
 
 #include <openvdb/io/File.h>
-#include <openvdb/io/GridDescriptor.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/Interpolation.h>
@@ -225,47 +224,105 @@ LevelSetPtr acceptGrid(const openvdb::GridBase::Ptr& base, const std::string& fi
 
 namespace {
 
-/// Reads a .vdb file's header and grid descriptors the way openvdb::io::File does (with
-/// OpenVDB's own readers), to check, before any tree is read, that every grid lies inside the
-/// file: a truncated file otherwise has OpenVDB read garbage counts and allocate without bound.
-class VdbHeaderProbe : public openvdb::io::Archive {
+/// Walks a .vdb file's header, file metadata and grid descriptors (the layout openvdb::io::File
+/// reads, file format 222 and later) with every length and offset checked against the file's
+/// size, before OpenVDB reads anything: OpenVDB trusts the counts it reads, so a truncated or
+/// corrupt file would have it allocate whatever garbage says (gigabytes for a 200-byte file).
+/// Older formats are left to OpenVDB.
+class VdbHeaderProbe {
 public:
-    /// Throws InputError when the file is shorter than its descriptors say.
-    void check(const std::string& file, const std::string& where) {
-        std::ifstream is(file, std::ios::binary);
-        if (!is) throw InputError(file, where, "cannot read VDB file: cannot open it");
-        is.seekg(0, std::ios::end);
-        const int64_t size = static_cast<int64_t>(is.tellg());
-        is.seekg(0, std::ios::beg);
-        readHeader(is);
-        openvdb::io::setVersion(is, libraryVersion(), fileVersion());
-        openvdb::MetaMap meta;
-        meta.readMeta(is);
-        if (!is) throw InputError(file, where, "cannot read VDB file: truncated header");
-        if (!inputHasGridOffsets()) return;  // old files: nothing to check against
-        const int32_t count = readGridCount(is);
-        if (!is || count < 0 || int64_t(count) > size) {
-            throw InputError(file, where, "cannot read VDB file: corrupt grid count");
+    VdbHeaderProbe(const std::string& file, const std::string& where) : mFile(file), mWhere(where) {}
+
+    void check() {
+        mIn.open(mFile, std::ios::binary);
+        if (!mIn) fail("cannot open it");
+        mIn.seekg(0, std::ios::end);
+        mSize = static_cast<int64_t>(mIn.tellg());
+        mIn.seekg(0, std::ios::beg);
+        if (pod<int64_t>() != 0x56444220) fail("IoError: not a VDB file");
+        const uint32_t version = pod<uint32_t>();
+        if (version < 222) return;  // an old format: OpenVDB's own reader decides
+        if (version > 1000) fail("corrupt header (file format " + std::to_string(version) + ")");
+        skip(8);                             // library version, major and minor
+        const bool offsets = pod<char>() != 0;
+        skip(36);                            // UUID
+        const int32_t metaCount = pod<int32_t>();
+        if (metaCount < 0 || metaCount > remaining()) fail("corrupt file metadata");
+        for (int32_t i = 0; i < metaCount; ++i) {
+            skipString();  // name
+            skipString();  // type
+            skip(pod<uint32_t>());  // value
         }
-        for (int32_t i = 0; i < count; ++i) {
-            openvdb::io::GridDescriptor gd;
-            gd.read(is);
-            if (!is) throw InputError(file, where, "cannot read VDB file: truncated grid list");
-            const int64_t grid = gd.getGridPos(), block = gd.getBlockPos(), end = gd.getEndPos();
-            if (!(0 < grid && grid <= block && block <= end && end <= size)) {
+        if (!offsets) return;
+        const int32_t grids = pod<int32_t>();
+        if (grids < 0 || grids > remaining()) fail("corrupt grid count");
+        for (int32_t i = 0; i < grids; ++i) {
+            const std::string name = string();
+            skipString();  // grid type
+            skipString();  // instance parent
+            const int64_t grid = pod<int64_t>(), block = pod<int64_t>(), end = pod<int64_t>();
+            if (!(tell() <= grid && grid <= block && block <= end && end <= mSize)) {
                 std::ostringstream msg;
-                msg << "cannot read VDB file: grid " << i << " ('"
-                    << openvdb::io::GridDescriptor::nameAsString(gd.uniqueName())
-                    << "') claims bytes up to " << end << " but the file has " << size
-                    << " (truncated or corrupt)";
-                throw InputError(file, where, msg.str());
+                msg << "grid " << i << " ('" << printable(name) << "') claims bytes up to " << end
+                    << " but the file has " << mSize << " (truncated or corrupt)";
+                fail(msg.str());
             }
-            gd.seekToEnd(is);
+            mIn.seekg(end);
         }
     }
+
+private:
+    [[noreturn]] void fail(const std::string& why) const {
+        throw InputError(mFile, mWhere, "cannot read VDB file: " + why);
+    }
+    int64_t tell() { return static_cast<int64_t>(mIn.tellg()); }
+    int64_t remaining() { return mSize - tell(); }
+    void skip(uint64_t n) {
+        if (n > static_cast<uint64_t>(remaining())) fail("truncated or corrupt header");
+        mIn.seekg(static_cast<std::streamoff>(n), std::ios::cur);
+    }
+    template <typename T> T pod() {
+        T v{};
+        if (remaining() < int64_t(sizeof(T))) fail("truncated or corrupt header");
+        mIn.read(reinterpret_cast<char*>(&v), sizeof(T));
+        if (!mIn) fail("truncated or corrupt header");
+        return v;
+    }
+    void skipString() { skip(pod<uint32_t>()); }
+    std::string string() {
+        const uint32_t n = pod<uint32_t>();
+        if (n > static_cast<uint64_t>(remaining()) || n > 4096) fail("corrupt grid name");
+        std::string out(n, '\0');
+        mIn.read(out.data(), n);
+        return out;
+    }
+    static std::string printable(std::string s) {
+        // OpenVDB marks duplicate names with a suffix after a control character.
+        for (char& c : s) {
+            if (static_cast<unsigned char>(c) < 32 || static_cast<unsigned char>(c) > 126) c = '?';
+        }
+        return s;
+    }
+
+    std::string mFile, mWhere;
+    std::ifstream mIn;
+    int64_t mSize = 0;
 };
 
 }  // namespace
+
+void checkVdbFile(const std::string& file, const std::string& where) {
+    ensureOpenVdbInitialized();
+    try {
+        VdbHeaderProbe(file, where).check();
+    } catch (const InputError&) {
+        throw;
+    } catch (const std::bad_alloc&) {
+        throw InputError(file, where, "cannot read VDB file: corrupt header");
+    } catch (const std::exception& e) {
+        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
+    }
+}
 
 std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::string& gridName,
                                        const std::string& where) {
@@ -274,13 +331,7 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
     if (!std::filesystem::is_regular_file(file, ec)) {
         throw InputError(file, where, "cannot read VDB file: no such file");
     }
-    try {
-        VdbHeaderProbe().check(file, where);
-    } catch (const InputError&) {
-        throw;
-    } catch (const std::exception& e) {
-        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
-    }
+    checkVdbFile(file, where);
     openvdb::GridPtrVecPtr grids;
     try {
         openvdb::io::File vdb(file);

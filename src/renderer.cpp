@@ -27,48 +27,6 @@
 namespace penumbra {
 
 // ---------------------------------------------------------------------------------------------
-// Methods
-
-const char* methodName(Method method) {
-    switch (method) {
-        case Method::Aci: return "aci";
-        case Method::AciPixel: return "aci-pixel";
-        case Method::Reference: return "reference";
-        case Method::McAdaptive: return "mc-adaptive";
-        case Method::McSolidAngle: return "mc-solid-angle";
-        case Method::McRatio: return "mc-ratio";
-    }
-    return "?";
-}
-
-bool isMonteCarlo(Method method) {
-    return method == Method::Reference || method == Method::McAdaptive ||
-           method == Method::McSolidAngle || method == Method::McRatio;
-}
-
-int defaultSamples(Method method) {
-    switch (method) {
-        case Method::Reference: return 1024;
-        case Method::McAdaptive: return 1024;
-        case Method::McSolidAngle: return 16;
-        case Method::McRatio: return 16;
-        default: return 0;
-    }
-}
-
-Method parseMethod(const std::string& name, const std::string& flag) {
-    const Method all[] = {Method::Aci,       Method::AciPixel,     Method::Reference,
-                          Method::McAdaptive, Method::McSolidAngle, Method::McRatio};
-    for (Method m : all) {
-        if (name == methodName(m)) return m;
-    }
-    throw InputError("", flag,
-                     "unknown method '" + name +
-                         "' (expected aci, aci-pixel, reference, mc-adaptive, mc-solid-angle or "
-                         "mc-ratio)");
-}
-
-// ---------------------------------------------------------------------------------------------
 // Shaft culling (Haines and Wallace 1991)
 
 Shaft::Shaft(const Box3& a, const Box3& b) {
@@ -463,13 +421,7 @@ private:
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
         const Receiver r = receiver(x);
         uint64_t before = mTs.shadow.raysCast();
-        Estimate e;
-        switch (mSettings.method) {
-            case Method::Reference: e = monteCarloReference(r, mLight, mTs.shadow, s); break;
-            case Method::McAdaptive: e = monteCarloAdaptive(r, mLight, mTs.shadow, s); break;
-            case Method::McSolidAngle: e = monteCarloSolidAngle(r, mLight, mTs.shadow, s); break;
-            default: e = monteCarloRatio(r, mLight, mTs.shadow, s); break;
-        }
+        const Estimate e = estimate(mSettings.method, r, mLight, mTs.shadow, mTs.integrator, s);
         mTs.sums[size_t(x)].rays += mTs.shadow.raysCast() - before;
         mTs.sums[size_t(x)].shadowed = true;
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;

@@ -18,7 +18,9 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <new>
 #include <set>
+#include <stdexcept>
 #include <sstream>
 #include <variant>
 
@@ -1176,7 +1178,17 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     scene.build.memoryLimitBytes = budget.limitBytes;
     for (const ObstaclePlan& p : plans) scene.build.estimatedBytes += estimatedBytes(p);
     const Clock::time_point start = Clock::now();
-    for (ObstaclePlan& p : plans) buildObstacles(p, ctx.file, scene.obstacles, scene.build);
+    for (ObstaclePlan& p : plans) {
+        try {
+            buildObstacles(p, ctx.file, scene.obstacles, scene.build);
+        } catch (const std::bad_alloc&) {
+            // A runtime failure (exit 1), not bad input, but the user needs to know which one.
+            throw std::runtime_error(ctx.file + ": " + p.pointer +
+                                     ": out of memory building its level set (raise voxel_size, "
+                                     "or lower level_set.max_memory_gib so that the estimate "
+                                     "refuses it up front)");
+        }
+    }
     scene.build.seconds = secondsSince(start);
     scene.inputFiles = ctx.inputs;
     return scene;

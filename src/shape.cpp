@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <iomanip>
 #include <sstream>
 #include <stdexcept>
 #include <type_traits>
@@ -826,7 +827,7 @@ LevelSetPtr buildLevelSet(const ShapeNode& root, double voxelSize, double halfWi
             std::max(maxComponent(glm::abs(bounds.lo)), maxComponent(glm::abs(bounds.hi)));
         if (!(reach / voxelSize + halfWidthVoxels < kMaxIndexCoordinate)) {
             std::ostringstream msg;
-            msg << "'" << name << "' reaches ~" << std::llround(reach / voxelSize)
+            msg << "'" << name << "' reaches ~" << std::setprecision(3) << reach / voxelSize
                 << " voxels from the origin, beyond the level set's index range ("
                 << kMaxIndexCoordinate << "); raise voxel_size";
             throw InputError("", "", msg.str());

@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "penumbra/estimator.h"
 #include "penumbra/form_factor.h"
 #include "penumbra/occluder.h"
 
@@ -112,46 +113,6 @@ AciMode parseAciMode(const std::string& name, const std::string& where);
 void applyAciMode(AciSettings& s, AciMode mode);
 /// The mode `s` corresponds to (Tangent for combinations no mode names exactly).
 AciMode aciModeOf(const AciSettings& s);
-
-struct AciCounts {
-    uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
-    uint64_t secondLevelRays = 0;  ///< saddle centres, dichotomies, checks, refinements
-    uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
-    uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
-    uint64_t squaresRefined = 0;
-    uint64_t squaresSplitForCoverage = 0;  ///< splits because discs did not cover a square
-    uint64_t restarts = 0;
-    int maxDepth = 0;              ///< deepest quadtree refinement reached
-
-    uint64_t shadowRays() const { return firstLevelRays + secondLevelRays; }
-    void merge(const AciCounts& o) {
-        firstLevelRays += o.firstLevelRays;
-        secondLevelRays += o.secondLevelRays;
-        cacheHits += o.cacheHits;
-        reusedRays += o.reusedRays;
-        squaresRefined += o.squaresRefined;
-        squaresSplitForCoverage += o.squaresSplitForCoverage;
-        restarts += o.restarts;
-        maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
-    }
-};
-
-/// Result of one evaluation at one receiver point for one light.
-struct Estimate {
-    double formFactor = 0.0;
-    Vec3 g{0.0};          ///< F = g . n (eq. 5)
-    Mat3 dg{0.0};         ///< dg[k] = d g / d M_k with n fixed
-    Vec3 gradient{0.0};   ///< dF/dM = dg^T n
-    /// An estimate of an upper bound on |F - F_exact|: the form factor of what the evaluation
-    /// left uncovered (proven by certificates: none of it is known), plus, per contour piece,
-    /// the part of the light between the integrated curve and the other curves its data allow
-    /// (docs/estimator.md). NaN when the mode gives none (paper, arcs).
-    double errorBound = std::numeric_limits<double>::quiet_NaN();
-    AciCounts counts;
-    /// Visibility of the first-level grid corners, row-major over (p+1) x (p+1): 1 visible,
-    /// 0 hidden (below the horizon counts as hidden). Used for shadow-pattern coherence.
-    std::vector<uint8_t> pattern;
-};
 
 class ContourIntegrator {
 public:

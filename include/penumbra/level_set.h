@@ -47,6 +47,11 @@ LevelSetPtr makeSphereLevelSet(const Vec3& center, double radius, double voxelSi
 LevelSetPtr makeBoxLevelSet(const Vec3& lo, const Vec3& hi, double voxelSize,
                             double halfWidthVoxels, const std::string& name = "box");
 
+/// Checks a .vdb file's header and grid descriptors (read with OpenVDB's own readers) before
+/// any tree is read: every grid's bytes must lie inside the file. Throws InputError naming
+/// `file` and `where` for a truncated or corrupt header (readLevelSets calls it first).
+void checkVdbFile(const std::string& file, const std::string& where);
+
 /// Reads level-set grids from a .vdb file: the grid named `gridName`, or every level-set grid
 /// when `gridName` is empty. Throws InputError naming `file` and `where` (the JSON path of the
 /// obstacle) when the file is missing or unreadable, the grid is absent, is not a float level

@@ -40,7 +40,7 @@
 
 #include <cstdint>
 
-#include "penumbra/contour_integrator.h"
+#include "penumbra/estimator.h"
 #include "penumbra/form_factor.h"
 #include "penumbra/math.h"
 #include "penumbra/occluder.h"

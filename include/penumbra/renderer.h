@@ -42,21 +42,6 @@
 
 namespace penumbra {
 
-enum class Method { Aci, AciPixel, Reference, McAdaptive, McSolidAngle, McRatio };
-
-/// True for the Monte Carlo methods (Reference, McAdaptive, McSolidAngle, McRatio).
-bool isMonteCarlo(Method method);
-
-/// The shadow rays per estimate a Monte Carlo method uses when RenderSettings::mc.samples is 0:
-/// 1024 for Reference (the paper's reference), 16 for McSolidAngle and McRatio, and a cap of
-/// 1024 for McAdaptive (whose threshold decides).
-int defaultSamples(Method method);
-
-/// The command-line name of a method: "aci", "aci-pixel", "reference", "mc-adaptive",
-/// "mc-solid-angle", "mc-ratio".
-const char* methodName(Method method);
-/// Inverse of methodName; throws InputError whose `where` is `flag` for an unknown name.
-Method parseMethod(const std::string& name, const std::string& flag = "--method");
 
 struct RenderSettings {
     Method method = Method::Aci;

@@ -149,14 +149,7 @@ int runProbe(const ProbeOptions& opt) {
         mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), opt.seed);
         mc.rayOffset = settings.rayOffset = receiverRayOffset(occluder, r.point, 1e-9);
         integrator.setSettings(settings);
-        Estimate e;
-        switch (method) {
-            case Method::Reference: e = monteCarloReference(r, light, query, mc); break;
-            case Method::McAdaptive: e = monteCarloAdaptive(r, light, query, mc); break;
-            case Method::McSolidAngle: e = monteCarloSolidAngle(r, light, query, mc); break;
-            case Method::McRatio: e = monteCarloRatio(r, light, query, mc); break;
-            default: e = integrator.evaluate(r, light, query); break;
-        }
+        const Estimate e = estimate(method, r, light, query, integrator, mc);
         out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << e.formFactor << ','
             << e.gradient.x << ',' << e.gradient.y << ',' << e.gradient.z << ','
             << e.counts.shadowRays();

@@ -1,0 +1,87 @@
+/// @file estimator.h
+/// What every estimator of the form factor shares: the methods by name, their result
+/// (Estimate, with its counts), and one call that evaluates any of them at one receiver point
+/// for one light, used by `probe` and `render` alike. Approximate contour integration is in
+/// contour_integrator.h, the Monte Carlo baselines in monte_carlo.h; adding a method means a
+/// name here, a case in estimate() (estimator.cpp) and its test.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "penumbra/form_factor.h"
+#include "penumbra/math.h"
+#include "penumbra/occluder.h"
+
+namespace penumbra {
+
+class ContourIntegrator;
+struct McSettings;
+
+/// The estimators: "aci" (the section 5 renderer's pipeline; a plain ACI evaluation in
+/// probe), "aci-pixel" (ACI at every pixel), and the Monte Carlo methods.
+enum class Method { Aci, AciPixel, Reference, McAdaptive, McSolidAngle, McRatio };
+
+/// True for the Monte Carlo methods (Reference, McAdaptive, McSolidAngle, McRatio).
+bool isMonteCarlo(Method method);
+
+/// The shadow rays per estimate a Monte Carlo method uses when RenderSettings::mc.samples is 0:
+/// 1024 for Reference (the paper's reference), 16 for McSolidAngle and McRatio, and a cap of
+/// 1024 for McAdaptive (whose threshold decides).
+int defaultSamples(Method method);
+
+/// The command-line name of a method: "aci", "aci-pixel", "reference", "mc-adaptive",
+/// "mc-solid-angle", "mc-ratio".
+const char* methodName(Method method);
+/// Inverse of methodName; throws InputError whose `where` is `flag` for an unknown name.
+Method parseMethod(const std::string& name, const std::string& flag = "--method");
+
+struct AciCounts {
+    uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
+    uint64_t secondLevelRays = 0;  ///< saddle centres, dichotomies, checks, refinements
+    uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
+    uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
+    uint64_t squaresRefined = 0;
+    uint64_t squaresSplitForCoverage = 0;  ///< splits because discs did not cover a square
+    uint64_t restarts = 0;
+    int maxDepth = 0;              ///< deepest quadtree refinement reached
+
+    uint64_t shadowRays() const { return firstLevelRays + secondLevelRays; }
+    void merge(const AciCounts& o) {
+        firstLevelRays += o.firstLevelRays;
+        secondLevelRays += o.secondLevelRays;
+        cacheHits += o.cacheHits;
+        reusedRays += o.reusedRays;
+        squaresRefined += o.squaresRefined;
+        squaresSplitForCoverage += o.squaresSplitForCoverage;
+        restarts += o.restarts;
+        maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
+    }
+};
+
+/// Result of one evaluation at one receiver point for one light.
+struct Estimate {
+    double formFactor = 0.0;
+    Vec3 g{0.0};          ///< F = g . n (eq. 5)
+    Mat3 dg{0.0};         ///< dg[k] = d g / d M_k with n fixed
+    Vec3 gradient{0.0};   ///< dF/dM = dg^T n
+    /// An estimate of an upper bound on |F - F_exact|: the form factor of what the evaluation
+    /// left uncovered (proven by certificates: none of it is known), plus, per contour piece,
+    /// the part of the light between the integrated curve and the other curves its data allow
+    /// (docs/estimator.md). NaN when the mode gives none (paper, arcs).
+    double errorBound = std::numeric_limits<double>::quiet_NaN();
+    AciCounts counts;
+    /// Visibility of the first-level grid corners, row-major over (p+1) x (p+1): 1 visible,
+    /// 0 hidden (below the horizon counts as hidden). Used for shadow-pattern coherence.
+    std::vector<uint8_t> pattern;
+};
+
+/// Evaluates `method` at `r` for `light`: ACI methods through `aci` (its settings decide), Monte
+/// Carlo methods with `mc` (samples 0 takes defaultSamples(method)). `query` is the caller's
+/// per-thread occluder query (occluder.h).
+Estimate estimate(Method method, const Receiver& r, const RectLight& light, Occluder::Query& query,
+                  ContourIntegrator& aci, const McSettings& mc);
+
+}  // namespace penumbra
