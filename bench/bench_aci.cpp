@@ -1,5 +1,5 @@
 // Benchmark of the contour-integration estimator on lines of receiver points crossing the
-// penumbra of a sphere and of a cube, against the exact answers (tests/exact_shadow.h).
+// penumbra of a sphere and of a cube, against the exact answers (tests/support/exact_shadow.h).
 // Prints, per scene and occluder kind, the mean shadow rays per penumbra point and the mean
 // error relative to the unoccluded form factor, at the paper's defaults and at other settings.
 // Not a test: it only prints figures. Usage: bench_aci [points-per-line [setting-filter]]
@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "../tests/exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 

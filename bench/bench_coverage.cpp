@@ -1,7 +1,7 @@
 // Benchmark of the estimator on seeded random scenes of spheres nobody tuned: 1 to 8 spheres
 // with radii from 2% to 40% of the light's edge, anywhere between the receiver plane and a
 // 2 x 2 light at height 4, random receiver points on the plane. Each scene is run twice: with
-// exact (analytic) spheres, whose answers are exact (tests/exact_shadow.h, rectMinusObstacles),
+// exact (analytic) spheres, whose answers are exact (tests/support/exact_shadow.h, rectMinusObstacles),
 // and with the same spheres as level sets (voxel 0.01), against the same exact answers (the
 // level sets' own voxelization error is about 0.005 voxel, tests/test_level_set_bias.cpp).
 // Prints, per ACI mode and Monte Carlo at equal time: rays per point, microseconds per point on
@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "../tests/exact_shadow.h"
-#include "../tests/paper_scene.h"
+#include "support/exact_shadow.h"
+#include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 #include "penumbra/monte_carlo.h"

@@ -1,13 +1,19 @@
 // Batch manifests, sharding and the batch runner. The manifest format is documented in
 // docs/batch.md; keep the two in step.
 //
-// Resume rests on one invariant: an output file exists only complete (image_io writes a
-// temporary file and renames it) and it carries the hash of the settings that made it in its
-// own metadata. The record and the pixels therefore appear in one rename, and no kill can leave
-// an image without its record or a record pointing at an older image. The sidecar `.job.json`
-// is written afterwards for people and gathering scripts; resume rewrites it when a kill lost it.
+// Resume rests on two records. The image carries the hash of the settings that made it in its
+// own metadata; the sidecar `.job.json` records that hash and the image file's size and content
+// hash. A job's files are staged under unique temporary names (output_files.h) and renamed
+// statistics first, sidecar second, image last, so an image under its final name always has
+// the sidecar that describes it (a kill between the renames leaves a sidecar describing an
+// image that is not there, or an older image: either way a mismatch, and the job is rendered
+// again). Resume skips a job only when all three agree: a truncated or altered image is
+// rendered again.
 #include "penumbra/batch.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -33,6 +39,7 @@
 
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/output_files.h"
 #include "thread_sanitizer.h"
 
 namespace penumbra {
@@ -71,33 +78,10 @@ std::string resolvePath(const std::string& baseDir, const std::string& path) {
     return (fs::path(baseDir) / p).lexically_normal().string();
 }
 
-// Temporary names follow image_io's pattern, `.BASE.tmp-PID-N`, so that one clean-up rule
-// (removeStaleTemporaries) covers images, sidecars and summaries.
-std::string temporaryName(const std::string& path) {
-    static std::atomic<unsigned> counter{0};
-    const fs::path p(path);
-    const std::string name = "." + p.filename().string() + ".tmp-" + std::to_string(::getpid()) +
-                             "-" + std::to_string(counter++);
-    return (p.parent_path() / name).string();
-}
-
-void writeFileAtomically(const std::string& path, const std::string& content) {
-    const std::string tmp = temporaryName(path);
-    {
-        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-        if (out) out << content;
-        if (!out || !out.flush()) {
-            const int err = errno;
-            std::remove(tmp.c_str());
-            throw std::runtime_error("cannot write '" + path + "': " + std::strerror(err));
-        }
-    }
-    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-        const int err = errno;
-        std::remove(tmp.c_str());
-        throw std::runtime_error("cannot write '" + path + "': " + std::strerror(err));
-    }
-}
+// Every temporary of a batch (images, sidecars, statistics, the summary) comes from
+// temporaryPathFor (output_files.h): unique per host, process and write, so that two jobs, or
+// two runs, writing next to one file never share a temporary, and removeStaleTemporaries can
+// tell a dead process's leftovers from a live run's.
 
 std::pair<int, int> lineColumn(const std::string& text, size_t byte) {
     int line = 1, column = 0;
@@ -299,6 +283,146 @@ void setAtPointer(Json& root, const std::string& pointer, Json value, const std:
 }
 
 // ---------------------------------------------------------------------------------------------
+// Which files a batch reads and writes
+
+/// One file the batch reads or writes, as the manifest (or a scene) names it.
+struct FileUse {
+    std::string path;  ///< as written, joined to its directory
+    std::string what;  ///< "/jobs/0/output", "/sweep/stats, frame 3", "the batch manifest"
+    bool output = false;
+};
+
+/// Files by real location (resolvedPath: absolute, symlinks and `..` resolved) and, for files
+/// that exist, by identity (device and inode), so that a symlink, an absolute path and a hard
+/// link all name one file.
+class FileRegistry {
+public:
+    /// The first use registered of the file at `path`, or nullptr; `real` gets its location.
+    const FileUse* find(const std::string& path, std::string& real) {
+        real = locate(path);
+        return findReal(real);
+    }
+
+    /// The output registered at `path`, or nullptr (inputs are not reported). Safe to call
+    /// from several threads at once (it does not touch the cache).
+    const FileUse* findOutput(const std::string& path) const {
+        const FileUse* use = findReal(resolvedPath(path));
+        return use && use->output ? use : nullptr;
+    }
+
+    /// Registers a file the batch reads; a file registered already keeps its first use.
+    void addInput(const std::string& path, const std::string& what) {
+        std::string real;
+        if (find(path, real)) return;
+        add(real, {path, what, false});
+    }
+
+    /// Registers a file written by `job`'s `field`; throws InputError (the manifest, the
+    /// field's pointer) when the file is already read or written by the batch.
+    void addOutput(const std::string& manifestFile, const BatchJob& job, const std::string& field,
+                   const std::string& path, const std::string& note = "") {
+        std::string real;
+        const std::string frame = job.frame >= 0 ? ", frame " + std::to_string(job.frame) : "";
+        const std::string where = job.pointer + "/" + field;
+        if (const FileUse* prior = find(path, real)) {
+            throw InputError(manifestFile, where,
+                             (frame.empty() ? "" : frame.substr(2) + ": ") + clash(*prior, path, note));
+        }
+        add(real, {path, where + frame + note, true});
+    }
+
+    /// Why writing `path` (described by `note`, e.g. " (the sidecar of ...)") is refused.
+    static std::string clash(const FileUse& prior, const std::string& path,
+                             const std::string& note) {
+        if (prior.output) {
+            return "'" + path + "'" + note + " is also written by " + prior.what +
+                   (prior.path != path ? " (as '" + prior.path + "')" : "") +
+                   ": every output needs its own file";
+        }
+        return "'" + path + "'" + note + " is " + prior.what +
+               ", which this batch reads: refusing to overwrite an input";
+    }
+
+private:
+    /// resolvedPath(path), with each directory resolved once: a sweep of many frames writes
+    /// into a few directories, and resolving every path afresh costs tens of microseconds.
+    /// A name that is itself a symlink (or `.`, `..`) is resolved whole.
+    std::string locate(const std::string& path) {
+        const fs::path p(path);
+        const fs::path name = p.filename();
+        struct stat st {};
+        if (name.empty() || name == "." || name == ".." ||
+            (::lstat(path.c_str(), &st) == 0 && S_ISLNK(st.st_mode))) {
+            return resolvedPath(path);
+        }
+        const std::string dir = p.parent_path().string();
+        auto it = mDirs.find(dir);
+        if (it == mDirs.end()) it = mDirs.emplace(dir, resolvedPath(dir.empty() ? "." : dir)).first;
+        return (fs::path(it->second) / name).string();
+    }
+
+    const FileUse* findReal(const std::string& real) const {
+        if (auto it = mByPath.find(real); it != mByPath.end()) return &mUses[it->second];
+        struct stat st {};
+        if (!mByIdentity.empty() && ::stat(real.c_str(), &st) == 0) {
+            auto it = mByIdentity.find({st.st_dev, st.st_ino});
+            if (it != mByIdentity.end()) return &mUses[it->second];
+        }
+        return nullptr;
+    }
+
+    void add(const std::string& real, FileUse use) {
+        const size_t index = mUses.size();
+        mUses.push_back(std::move(use));
+        mByPath.emplace(real, index);
+        struct stat st {};
+        if (::stat(real.c_str(), &st) == 0) {
+            mByIdentity.emplace(std::make_pair(st.st_dev, st.st_ino), index);
+        }
+    }
+
+    std::vector<FileUse> mUses;
+    std::map<std::string, size_t> mByPath;
+    std::map<std::pair<dev_t, ino_t>, size_t> mByIdentity;
+    std::map<std::string, std::string> mDirs;  // directory as written -> resolvedPath
+};
+
+/// Every file a job writes, in the order its run renames them: statistics, sidecar, image.
+void addJobOutputs(FileRegistry& files, const std::string& manifestFile, const BatchJob& job) {
+    files.addOutput(manifestFile, job, "output", job.output);
+    files.addOutput(manifestFile, job, "output", sidecarPath(job.output),
+                    " (the sidecar record of '" + job.output + "')");
+    if (!job.stats.empty()) files.addOutput(manifestFile, job, "stats", job.stats);
+}
+
+/// The `file` values in scene JSON (the `.vdb` and `.obj` files a scene names), with their
+/// pointers under `pointer`.
+void collectFileRefs(const Json& v, const std::string& pointer,
+                     std::vector<std::pair<std::string, std::string>>& out) {
+    if (v.is_object()) {
+        for (auto it = v.begin(); it != v.end(); ++it) {
+            const std::string p = pointer + "/" + pointerToken(it.key());
+            if (it.key() == "file" && it.value().is_string()) {
+                out.emplace_back(it.value().get<std::string>(), p);
+            } else {
+                collectFileRefs(it.value(), p, out);
+            }
+        }
+    } else if (v.is_array()) {
+        for (size_t i = 0; i < v.size(); ++i) {
+            collectFileRefs(v[i], pointer + "/" + std::to_string(i), out);
+        }
+    }
+}
+
+/// A path a scene names, as the scene loader resolves it (relative to the scene's directory).
+std::string sceneRelativePath(const std::string& sceneDir, const std::string& file) {
+    fs::path p(file);
+    if (p.is_relative() && !sceneDir.empty()) p = fs::path(sceneDir) / p;
+    return p.lexically_normal().string();
+}
+
+// ---------------------------------------------------------------------------------------------
 // Manifest
 
 /// The fields a job may give, any of them possibly inherited from "defaults".
@@ -467,11 +591,14 @@ private:
         }
     }
 
-    BatchJob finish(const JobSpec& spec, const std::string& where, const std::string& origin) {
+    BatchJob finish(const JobSpec& spec, const std::string& where, const std::string& origin,
+                    long frame = -1) {
         if (!spec.scene) fail(where + "/scene", "missing required field 'scene'");
         if (!spec.output) fail(where + "/output", "missing required field 'output'");
         BatchJob job;
         job.origin = origin;
+        job.pointer = where;
+        job.frame = frame;
         job.name = spec.name ? *spec.name : *spec.output;
         job.scene = resolvePath(mBaseDir, *spec.scene);
         job.output = resolvePath(mBaseDir, *spec.output);
@@ -626,19 +753,15 @@ private:
                 f.set[v.pointer] = value.dump();
             }
             manifest.jobs.push_back(
-                finish(f, where, where + " frame " + std::to_string(frame)));
+                finish(f, where, where + " frame " + std::to_string(frame), frame));
         }
     }
 
+    // No two jobs write one file (images, sidecars, statistics), by real location: the files
+    // they read are checked by checkBatchFiles, which reads the scenes.
     void checkOutputsUnique(const BatchManifest& manifest) const {
-        std::map<std::string, const BatchJob*> seen;
-        for (const BatchJob& job : manifest.jobs) {
-            auto [it, inserted] = seen.emplace(job.output, &job);
-            if (!inserted) {
-                fail(job.origin, "writes the same output as " + it->second->origin + ": " +
-                                     job.output + " (each job needs its own file)");
-            }
-        }
+        FileRegistry files;
+        for (const BatchJob& job : manifest.jobs) addJobOutputs(files, mFile, job);
     }
 
     std::string mFile, mBaseDir;
@@ -676,41 +799,30 @@ std::string formatSeconds(double v) {
 // ---------------------------------------------------------------------------------------------
 // Records and clean-up
 
-void removeStaleTemporaries(const BatchManifest& manifest, const std::vector<size_t>& selected) {
-    // Group the file names to protect by directory so that each directory is listed once, even
-    // for a sweep of thousands of frames in one folder.
-    std::map<std::string, std::set<std::string>> names;
-    auto add = [&](const std::string& path) {
-        if (path.empty()) return;
-        const fs::path p(path);
-        names[parentDir(path)].insert(p.filename().string());
-    };
+/// Removes the temporaries of dead processes on this host (output_files.h) in the directories
+/// the selected jobs (and the summary) write into; a live run's temporaries are left alone, so a
+/// second run started while the first is writing cannot break it.
+void removeStaleBatchTemporaries(const BatchManifest& manifest, const std::vector<size_t>& selected,
+                                 const std::string& summary) {
+    std::set<std::string> dirs;  // each directory listed once, even for thousands of frames
     for (size_t i : selected) {
         const BatchJob& job = manifest.jobs[i];
-        add(job.output);
-        add(sidecarPath(job.output));
-        add(job.stats);
+        dirs.insert(parentDir(job.output));  // the sidecar is next to it
+        if (!job.stats.empty()) dirs.insert(parentDir(job.stats));
     }
-    for (const auto& [dir, bases] : names) {
-        std::error_code ec;
-        for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-            const std::string name = it->path().filename().string();
-            const size_t tmp = name.rfind(".tmp-");
-            if (name.size() < 2 || name[0] != '.' || tmp == std::string::npos || tmp < 1) continue;
-            if (bases.count(name.substr(1, tmp - 1))) {
-                std::error_code ignored;
-                fs::remove(it->path(), ignored);
-            }
-        }
-    }
+    if (!summary.empty()) dirs.insert(parentDir(summary));
+    for (const std::string& dir : dirs) removeStaleTemporaries(dir);
 }
 
 std::string sidecarJson(const BatchJob& job, const std::string& hash, int width, int height,
-                        double seconds, uint64_t shadowRays, uint64_t viewingRays) {
+                        double seconds, uint64_t shadowRays, uint64_t viewingRays,
+                        const FileDigest& output) {
     nlohmann::ordered_json j;  // keys in a reading order
     j["format"] = "penumbra-batch-job";
-    j["version"] = 1;
+    j["version"] = 2;
     j["hash"] = hash;
+    j["output_bytes"] = output.bytes;  // what resume checks the image file against
+    j["output_hash"] = output.hash;
     j["name"] = job.name;
     j["origin"] = job.origin;
     j["scene"] = job.scene;
@@ -740,23 +852,41 @@ std::string sidecarJson(const BatchJob& job, const std::string& hash, int width,
     return j.dump(2) + "\n";
 }
 
-std::string sidecarHash(const std::string& path) {
+/// Whether `job`'s output is finished with the settings of `hash`: the image exists, its sidecar
+/// records `hash`, the image's size and content hash match the sidecar's, and the image's own
+/// header carries `hash`. Anything missing, unreadable or different: false (render it again).
+bool outputVerified(const BatchJob& job, const std::string& hash, uint64_t& shadowRays) {
+    std::error_code ec;
+    if (!fs::is_regular_file(job.output, ec)) return false;
+    Json record;
     try {
-        std::ifstream in(path, std::ios::binary);
-        if (!in) return "";
-        Json j = Json::parse(in);
-        return j.value("hash", std::string());
+        std::ifstream in(sidecarPath(job.output), std::ios::binary);
+        if (!in) return false;
+        record = Json::parse(in);
     } catch (const std::exception&) {
-        return "";
+        return false;
     }
-}
-
-uint64_t toCount(const std::string& s) {
+    if (!record.is_object()) return false;
+    const auto recordedHash = record.find("hash");
+    const auto bytes = record.find("output_bytes");
+    const auto content = record.find("output_hash");
+    if (recordedHash == record.end() || !recordedHash->is_string() ||
+        recordedHash->get<std::string>() != hash || bytes == record.end() ||
+        !bytes->is_number_unsigned() || content == record.end() || !content->is_string()) {
+        return false;  // another job's record, or a record from before content hashes
+    }
+    const uint64_t size = fs::file_size(job.output, ec);
+    if (ec || size != bytes->get<uint64_t>()) return false;  // cheap: truncated or grown
     try {
-        return s.empty() ? 0 : std::stoull(s);
+        const FileDigest digest = digestFile(job.output);
+        if (digest.bytes != size || digest.hash != content->get<std::string>()) return false;
+        if (readImageAttribute(job.output, kHashAttribute) != hash) return false;
     } catch (const std::exception&) {
-        return 0;
+        return false;
     }
+    const auto rays = record.find("shadow_rays");
+    shadowRays = rays != record.end() && rays->is_number_unsigned() ? rays->get<uint64_t>() : 0;
+    return true;
 }
 
 /// Shared state of a run; every member after `mutex` is guarded by it.
@@ -769,6 +899,7 @@ struct RunState {
     const std::vector<size_t>& selected;
     const BatchOptions& options;
     const BatchCallbacks& callbacks;
+    FileRegistry files;  // every file the batch reads and writes (read-only while jobs run)
     std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
     std::atomic<size_t> next{0};
     std::mutex mutex;
@@ -797,34 +928,20 @@ void runJob(RunState& run, size_t slot) {
     try {
         const std::string text = resolveSceneText(job);
         const std::string hash = jobHash(job, text);
-        std::error_code ec;
-        if (run.options.resume && fs::is_regular_file(job.output, ec)) {
-            std::string recorded;
-            try {
-                recorded = readImageAttribute(job.output, kHashAttribute);
-            } catch (const std::exception&) {
-                recorded.clear();  // unreadable: render it again
-            }
-            if (!recorded.empty() && recorded == hash) {
-                result.status = JobStatus::Skipped;
-                result.shadowRays = toCount(readImageAttribute(job.output, "penumbra:shadow_rays"));
-                // A kill between the image's rename and the sidecar's leaves the image alone.
-                const std::string sidecar = sidecarPath(job.output);
-                if (sidecarHash(sidecar) != hash) {
-                    const Image img = readImage(job.output);
-                    writeFileAtomically(
-                        sidecar,
-                        sidecarJson(job, hash, img.width, img.height,
-                                    std::atof(readImageAttribute(job.output, "penumbra:seconds")
-                                                  .c_str()),
-                                    result.shadowRays,
-                                    toCount(readImageAttribute(job.output,
-                                                               "penumbra:viewing_rays"))));
+        if (run.options.resume && outputVerified(job, hash, result.shadowRays)) {
+            result.status = JobStatus::Skipped;
+        } else {
+            const Scene scene = parseScene(text, job.scene, parentDir(job.scene));
+            // The files the scene read were checked from its text before the run
+            // (checkBatchFiles); this also catches a reference that check could not see.
+            for (const auto& [path, pointer] : scene.inputFiles) {
+                if (const FileUse* writer = run.files.findOutput(path)) {
+                    throw InputError(job.scene, pointer,
+                                     "'" + path + "' is written by " + writer->what + " of " +
+                                         run.manifest.file +
+                                         ": refusing to read a file this batch overwrites");
                 }
             }
-        }
-        if (result.status != JobStatus::Skipped) {
-            const Scene scene = parseScene(text, job.scene, parentDir(job.scene));
             RenderSettings settings = job.settings;
             settings.threads = -1;  // share the batch's arena
             const RenderResult r = render(scene, settings, [&](int done, int total) {
@@ -833,13 +950,19 @@ void runJob(RunState& run, size_t slot) {
                 run.report();
             });
             const RenderStats& st = r.stats;
+            // Staged under unique temporary names and renamed in the order registered:
+            // statistics, sidecar, image. An image on disk therefore implies its statistics
+            // and the sidecar that records its size and content hash; a failure before the
+            // renames leaves nothing (the OutputSet removes what it staged).
+            OutputSet files;
             fs::create_directories(parentDir(job.output));
-            // The statistics go first and the image last but one: an image on disk implies
-            // that its statistics are there too.
             if (!job.stats.empty()) {
                 fs::create_directories(parentDir(job.stats));
-                writeStatsJson(job.stats, st);
+                files.addOutput(job.stats, job.pointer + "/stats");
             }
+            const std::string sidecar = sidecarPath(job.output);
+            files.addOutput(sidecar, job.pointer + "/output");
+            files.addOutput(job.output, job.pointer + "/output");
             const ImageMetadata metadata = {
                 {"ImageDescription", "penumbra batch render of " + job.scene},
                 {"penumbra:scene", job.scene},
@@ -854,12 +977,17 @@ void runJob(RunState& run, size_t slot) {
                 {"penumbra:viewing_rays", std::to_string(st.viewingRays)},
                 {"penumbra:shadow_rays", std::to_string(st.shadowRays)},
             };
-            writeImage(job.output, r.color, metadata, "output");
+            const std::string stagedImage = files.stage(job.output);
+            writeImage(job.output, r.color, metadata, job.pointer + "/output", stagedImage);
+            const FileDigest digest = digestFile(stagedImage);
+            writeTextFile(files.stage(sidecar),
+                          sidecarJson(job, hash, st.width, st.height, st.seconds, st.shadowRays,
+                                      st.viewingRays, digest),
+                          sidecar);
+            if (!job.stats.empty()) writeTextFile(files.stage(job.stats), st.toJson(), job.stats);
+            files.commit();
             result.status = JobStatus::Rendered;
             result.shadowRays = st.shadowRays;
-            writeFileAtomically(sidecarPath(job.output),
-                                sidecarJson(job, hash, st.width, st.height, st.seconds,
-                                            st.shadowRays, st.viewingRays));
         }
     } catch (const std::exception& e) {
         result.status = JobStatus::Failed;
@@ -907,7 +1035,274 @@ BatchManifest parseManifest(const std::string& jsonText, const std::string& file
 
 BatchManifest loadManifest(const std::string& path) {
     const std::string text = readTextFile(path, "the batch manifest");
-    return parseManifest(text, path, parentDir(path));
+    BatchManifest manifest = parseManifest(text, path, parentDir(path));
+    manifest.path = path;
+    return manifest;
+}
+
+namespace {
+
+/// The lock file of a manifest (lockBatchManifest): `.NAME.lock` next to it.
+std::string manifestLockPath(const std::string& manifestPath) {
+    const fs::path m(manifestPath);
+    return (m.parent_path() / ("." + m.filename().string() + ".lock")).string();
+}
+
+/// Every file of the batch: first what it reads (the manifest, each scene file and the files
+/// the scenes name, with each job's overrides), then what each job writes, then the summary.
+/// Throws InputError at the first clash.
+FileRegistry registerBatchFiles(const BatchManifest& manifest, const std::string& summary,
+                                const std::string& summaryFlag) {
+    FileRegistry files;
+    if (!manifest.path.empty()) {
+        files.addInput(manifest.path, "the batch manifest");
+        files.addInput(manifestLockPath(manifest.path), "the batch manifest's lock file");
+    }
+    // A sweep of many frames shares one scene file: read and scan it once.
+    std::map<std::string, std::vector<std::pair<std::string, std::string>>> sceneRefs;
+    for (const BatchJob& job : manifest.jobs) {
+        auto it = sceneRefs.find(job.scene);
+        if (it == sceneRefs.end()) {
+            std::vector<std::pair<std::string, std::string>> refs;
+            try {
+                collectFileRefs(parseStrictJson(readTextFile(job.scene, "the scene file"),
+                                                job.scene),
+                                "", refs);
+            } catch (const std::exception&) {
+                // Unreadable or malformed: the job fails with the loader's message when it runs.
+            }
+            it = sceneRefs.emplace(job.scene, std::move(refs)).first;
+            files.addInput(job.scene, "the scene of " + job.origin);
+            const std::string dir = parentDir(job.scene);
+            for (const auto& [file, pointer] : it->second) {
+                files.addInput(sceneRelativePath(dir, file), pointer + " of " + job.scene);
+            }
+        }
+        // Overrides may name files too ("obstacles/0/file", or a whole obstacle with one).
+        for (const auto& [pointer, value] : job.overrides) {
+            if (value.find("\"file\"") == std::string::npos &&
+                (pointer.size() < 5 || pointer.compare(pointer.size() - 5, 5, "/file") != 0)) {
+                continue;
+            }
+            std::vector<std::pair<std::string, std::string>> refs;
+            try {
+                const Json v = Json::parse(value);
+                if (v.is_string()) {
+                    refs.emplace_back(v.get<std::string>(), pointer);
+                } else {
+                    collectFileRefs(v, pointer, refs);
+                }
+            } catch (const std::exception&) {
+                continue;
+            }
+            const std::string dir = parentDir(job.scene);
+            for (const auto& [file, at] : refs) {
+                files.addInput(sceneRelativePath(dir, file),
+                               at + " of " + job.scene + " (as " + job.origin + " sets it)");
+            }
+        }
+    }
+    for (const BatchJob& job : manifest.jobs) addJobOutputs(files, manifest.file, job);
+    if (!summary.empty()) {
+        std::string real;
+        if (const FileUse* prior = files.find(summary, real)) {
+            throw InputError("", summaryFlag, FileRegistry::clash(*prior, summary, ""));
+        }
+    }
+    return files;
+}
+
+}  // namespace
+
+void checkBatchFiles(const BatchManifest& manifest, const std::string& summary,
+                     const std::string& summaryFlag) {
+    registerBatchFiles(manifest, summary, summaryFlag);
+}
+
+FileDigest digestFile(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw std::runtime_error("cannot read '" + path + "': " + std::strerror(errno));
+    FileDigest d;
+    uint64_t h = 1469598103934665603ull;  // FNV-1a 64, as jobHash
+    std::vector<char> buffer(1 << 16);
+    while (in) {
+        in.read(buffer.data(), std::streamsize(buffer.size()));
+        const std::streamsize n = in.gcount();
+        for (std::streamsize i = 0; i < n; ++i) {
+            h ^= static_cast<unsigned char>(buffer[size_t(i)]);
+            h *= 1099511628211ull;
+        }
+        d.bytes += uint64_t(n);
+    }
+    if (in.bad()) throw std::runtime_error("cannot read '" + path + "'");
+    d.hash = hex16(h);
+    return d;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Lock
+
+namespace {
+
+std::string hostName() {
+    char buf[256] = {};
+    if (::gethostname(buf, sizeof(buf) - 1) != 0 || buf[0] == '\0') return "unknown host";
+    return buf;
+}
+
+enum class LockOutcome { Held, Busy, Impossible };
+
+/// Opens (creating it) the lock file `path` and takes `operation` (LOCK_EX or LOCK_SH) on it
+/// without waiting. Returns the descriptor when held, -1 otherwise, with `outcome` saying why.
+int tryLock(const std::string& path, int operation, LockOutcome& outcome, std::string& why) {
+    for (int attempt = 0; attempt < 64; ++attempt) {
+        int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+        if (fd < 0 && errno == EACCES) fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd < 0) {
+            why = "cannot create '" + path + "': " + std::strerror(errno);
+            outcome = LockOutcome::Impossible;
+            return -1;
+        }
+        if (::flock(fd, operation | LOCK_NB) != 0) {
+            const int err = errno;
+            ::close(fd);
+            if (err == EINTR) continue;
+            if (err == EWOULDBLOCK) {
+                outcome = LockOutcome::Busy;
+                return -1;
+            }
+            why = "cannot lock '" + path + "': " + std::strerror(err);
+            outcome = LockOutcome::Impossible;
+            return -1;
+        }
+        // A shard's lock file is removed by its holder when it ends: make sure the file locked
+        // is the one at `path` now, not one just unlinked (then try again).
+        struct stat held {}, named {};
+        if (::fstat(fd, &held) == 0 && ::stat(path.c_str(), &named) == 0 &&
+            held.st_dev == named.st_dev && held.st_ino == named.st_ino) {
+            outcome = LockOutcome::Held;
+            return fd;
+        }
+        ::close(fd);
+    }
+    why = "cannot lock '" + path + "': it keeps being replaced";
+    outcome = LockOutcome::Impossible;
+    return -1;
+}
+
+/// Records this process in a lock file it holds exclusively ("PID HOST"), for the message of a
+/// run it refuses.
+void writeHolder(int fd) {
+    const std::string text = std::to_string(::getpid()) + " " + hostName() + "\n";
+    if (::ftruncate(fd, 0) == 0) {
+        const ssize_t written = ::pwrite(fd, text.data(), text.size(), 0);
+        (void)written;  // best effort: the lock holds without it
+    }
+}
+
+/// "process 1234 on node7" from a lock file, or "" when it names nobody.
+std::string holderOf(const std::string& path) {
+    std::ifstream in(path);
+    long pid = 0;
+    std::string host;
+    if (!(in >> pid >> host) || pid <= 0) return "";
+    return "process " + std::to_string(pid) + " on " + host;
+}
+
+}  // namespace
+
+BatchLock::BatchLock(BatchLock&& other) noexcept { *this = std::move(other); }
+
+BatchLock& BatchLock::operator=(BatchLock&& other) noexcept {
+    if (this != &other) {
+        release();
+        std::swap(mMainFd, other.mMainFd);
+        std::swap(mShardFd, other.mShardFd);
+        std::swap(mExclusive, other.mExclusive);
+        std::swap(mMainPath, other.mMainPath);
+        std::swap(mShardPath, other.mShardPath);
+    }
+    return *this;
+}
+
+BatchLock::~BatchLock() { release(); }
+
+void BatchLock::release() {
+    if (mShardFd >= 0) {
+        ::unlink(mShardPath.c_str());  // while still held: see tryLock
+        ::close(mShardFd);
+        mShardFd = -1;
+    }
+    if (mMainFd >= 0) {
+        if (mExclusive && ::ftruncate(mMainFd, 0) != 0) {
+            // the holder's name stays; harmless, the next holder rewrites it
+        }
+        ::close(mMainFd);
+        mMainFd = -1;
+    }
+    mExclusive = false;
+}
+
+BatchLock lockBatchManifest(const std::string& manifestPath, const Shard& shard,
+                            std::string* warning) {
+    const fs::path m(manifestPath);
+    const fs::path dir = m.parent_path();
+    const std::string name = m.filename().string();
+    BatchLock lock;
+    lock.mMainPath = manifestLockPath(manifestPath);
+    const bool whole = shard.count <= 1;
+    auto impossible = [&](const std::string& why) {
+        if (warning) {
+            *warning = why + ": a second run of " + manifestPath +
+                       " at the same time would not be detected";
+        }
+        lock.release();
+        return std::move(lock);
+    };
+    auto refuse = [&](const std::string& who, const std::string& lockFile) {
+        throw InputError(manifestPath, "",
+                         "already being run by " + who + ", which holds '" + lockFile +
+                             "': refusing to run it twice at once; wait for that run to end, "
+                             "then run again with --resume");
+    };
+    auto another = [](const std::string& holder) {
+        return "another penumbra batch" + (holder.empty() ? std::string() : " (" + holder + ")");
+    };
+    LockOutcome outcome;
+    std::string why;
+    const int mainFd = tryLock(lock.mMainPath, whole ? LOCK_EX : LOCK_SH, outcome, why);
+    if (outcome == LockOutcome::Impossible) return impossible(why);
+    if (outcome == LockOutcome::Busy) {
+        const std::string holder = holderOf(lock.mMainPath);
+        refuse(whole && holder.empty()
+                   ? "other penumbra batch runs of its shards (--shard I/N or an array index)"
+                   : another(holder),
+               lock.mMainPath);
+    }
+    lock.mMainFd = mainFd;
+    lock.mExclusive = whole;
+    if (whole) {
+        writeHolder(mainFd);
+        return lock;
+    }
+    // Shards share the manifest's lock; no exclusive holder can be there now, so a name left
+    // in the file by a killed whole-batch run is stale.
+    if (::ftruncate(mainFd, 0) != 0) {
+        // read-only lock file: messages just name no process
+    }
+    lock.mShardPath = (dir / ("." + name + ".shard-" + std::to_string(shard.index) + "-of-" +
+                              std::to_string(shard.count) + ".lock"))
+                          .string();
+    const int shardFd = tryLock(lock.mShardPath, LOCK_EX, outcome, why);
+    if (outcome == LockOutcome::Impossible) return impossible(why);
+    if (outcome == LockOutcome::Busy) {
+        const std::string holder = holderOf(lock.mShardPath);
+        lock.release();
+        refuse(another(holder), lock.mShardPath);
+    }
+    lock.mShardFd = shardFd;
+    writeHolder(shardFd);
+    return lock;
 }
 
 std::string expandFrameTemplate(const std::string& pattern, long frame, const std::string& file,
@@ -1129,10 +1524,12 @@ std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector
         }
     }
     RunState run{manifest, selected, options, callbacks};
+    // Every clash between the files the batch reads and writes is refused before any job runs.
+    run.files = registerBatchFiles(manifest, options.summary, "--summary");
     run.results.resize(selected.size());
     run.fraction.assign(selected.size(), 0.0);
     run.info.total = selected.size();
-    removeStaleTemporaries(manifest, selected);
+    removeStaleBatchTemporaries(manifest, selected, options.summary);
 
     // One arena for everything: each runner takes the next job, and render() (threads = -1)
     // spreads that job's rows over the same workers. A batch of many small jobs keeps every
@@ -1221,7 +1618,7 @@ void writeBatchSummary(const std::string& path, const BatchManifest& manifest, c
     const std::string dir = parentDir(path);
     std::error_code ec;
     fs::create_directories(dir, ec);
-    writeFileAtomically(path, content);
+    writeTextFileAtomically(path, content);
 }
 
 }  // namespace penumbra

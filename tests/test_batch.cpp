@@ -25,6 +25,7 @@
 #include "penumbra/batch.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/output_files.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
 
@@ -407,7 +408,7 @@ TEST_CASE("a bad manifest is refused with the JSON pointer of the bad value", "[
     CHECK(where(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "width": 0}]})") ==
           "/jobs/0/width");
     CHECK(where(R"({"jobs": [{"scene": "a.json", "output": "a.exr"},
-                             {"scene": "b.json", "output": "./a.exr"}]})") == "/jobs/1");
+                             {"scene": "b.json", "output": "./a.exr"}]})") == "/jobs/1/output");
     CHECK(where(R"({"sweep": {"scene": "a.json", "output": "a.exr", "frames": 3}})") ==
           "/sweep/output");
     CHECK(where(R"({"sweep": [{"scene": "a.json", "output": "a{frame}.exr", "frames": 2,
@@ -492,24 +493,37 @@ TEST_CASE("runBatch renders what render() renders, isolates a failing job, and r
     CHECK(r[2].status == JobStatus::Failed);
     CHECK(r[3].status == JobStatus::Skipped);
 
-    // A changed override renders that job again; a lost sidecar is rewritten without a render.
+    // A changed override renders that job again; so does a lost sidecar (it is the record of
+    // the image's size and content hash: without it the image cannot be verified).
     fs::remove(dir / "out/plain.exr.job.json");
     m.jobs[3].overrides = {{"/lights/0/corner", "[0.5,0,4]"}};
     r = runBatch(m, {0, 3}, options);
     REQUIRE(r.size() == 2);
-    CHECK(r[0].status == JobStatus::Skipped);
+    CHECK(r[0].status == JobStatus::Rendered);
     CHECK(r[1].status == JobStatus::Rendered);
+    CHECK(runBatch(m, {0, 3}, options)[0].status == JobStatus::Skipped);
     CHECK(fs::exists(dir / "out/plain.exr.job.json"));
     CHECK(readFile(dir / "out/plain.exr.job.json").find(
               jobHash(m.jobs[0], resolveSceneText(m.jobs[0]))) != std::string::npos);
 
-    // Stale temporaries of a killed run are removed; unrelated dot files are left alone.
-    writeFile(dir / "out/.plain.exr.tmp-99999-0.exr", "partial");
-    writeFile(dir / "out/.moved.png.job.json.tmp-99999-3", "partial");
+    // Stale temporaries of a killed run (a dead process of this host) are removed; a live
+    // process's and unrelated dot files are left alone.
+    std::string host;
+    long pid = 0;
+    REQUIRE(parseTemporaryName(fs::path(temporaryPathFor("x.exr")).filename().string(), host,
+                               pid));
+    const std::string dead = "out/.plain.exr.tmp-" + host + "-999999999-0.exr";
+    const std::string deadSidecar = "out/.moved.png.job.json.tmp-" + host + "-999999999-3.json";
+    const std::string live =
+        "out/.moved.png.tmp-" + host + "-" + std::to_string(::getpid()) + "-7.png";
+    writeFile(dir / dead, "partial");
+    writeFile(dir / deadSidecar, "partial");
+    writeFile(dir / live, "being written");
     writeFile(dir / "out/.keep.tmp-1", "someone else's");
     r = runBatch(m, all, options);
-    CHECK(!fs::exists(dir / "out/.plain.exr.tmp-99999-0.exr"));
-    CHECK(!fs::exists(dir / "out/.moved.png.job.json.tmp-99999-3"));
+    CHECK(!fs::exists(dir / dead));
+    CHECK(!fs::exists(dir / deadSidecar));
+    CHECK(fs::exists(dir / live));
     CHECK(fs::exists(dir / "out/.keep.tmp-1"));
 }
 

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"

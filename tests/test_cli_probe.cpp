@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 
 namespace fs = std::filesystem;

@@ -7,8 +7,8 @@
 #include <set>
 #include <tuple>
 
-#include "exact_shadow.h"
-#include "paper_scene.h"
+#include "support/exact_shadow.h"
+#include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 #include "penumbra/monte_carlo.h"

@@ -1,6 +1,6 @@
 // Certified coverage (AciSettings::coverage, the default tangent mode): shadows and windows
 // that touch no first-level corner are found, and every answer comes with an error bound that
-// holds. Exact references: exact::rectMinusObstacles (tests/exact_shadow.h), independent of the
+// holds. Exact references: exact::rectMinusObstacles (tests/support/exact_shadow.h), independent of the
 // library.
 #include <catch2/catch.hpp>
 
@@ -9,8 +9,8 @@
 #include <random>
 #include <vector>
 
-#include "exact_shadow.h"
-#include "paper_scene.h"
+#include "support/exact_shadow.h"
+#include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/monte_carlo.h"
 #include "penumbra/scene.h"

@@ -9,7 +9,7 @@
 #include <random>
 #include <vector>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 
 namespace penumbra {
 namespace {

@@ -1,10 +1,10 @@
-// Tests of form_factor.h against independent closed forms (tests/exact_shadow.h): catalogued
+// Tests of form_factor.h against independent closed forms (tests/support/exact_shadow.h): catalogued
 // rectangle form factors, superposition, finite differences and brute-force quadrature.
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <vector>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/form_factor.h"
 
 namespace penumbra {

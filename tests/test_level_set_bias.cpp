@@ -18,7 +18,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/level_set.h"
 #include "penumbra/monte_carlo.h"
 #include "penumbra/occluder.h"

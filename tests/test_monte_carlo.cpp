@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/error.h"
 #include "penumbra/monte_carlo.h"
 #include "penumbra/renderer.h"

@@ -15,7 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/camera.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"

@@ -9,8 +9,8 @@
 #include <cmath>
 #include <vector>
 
-#include "exact_shadow.h"
-#include "paper_scene.h"
+#include "support/exact_shadow.h"
+#include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
 

@@ -17,7 +17,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "exact_shadow.h"
+#include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"

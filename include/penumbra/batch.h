@@ -9,11 +9,20 @@
 /// - Sharding (shardJobs) splits the jobs for a cluster: job i goes to shard i mod N.
 /// - runBatch() renders the selected jobs in one TBB task arena shared by the jobs and their
 ///   pixels. A job that fails (bad scene, missing file, write error) is recorded with its error
-///   and the others go on. Each output is written atomically (image_io) and carries the hash of
-///   the job's resolved settings in its metadata (`penumbra:job_hash`); a sidecar `OUT.job.json`
-///   with the same hash and the job's counts is written next to it afterwards. With `resume`,
-///   a job whose output carries the same hash is skipped, so a run killed at any moment and
-///   started again loses no job and renders none twice.
+///   and the others go on. Before any job runs, every file the batch writes (outputs, sidecars,
+///   statistics, the summary) is resolved to its real location (output_files.h) and checked
+///   against every other and against every file the batch reads (the manifest, the scenes, the
+///   `.vdb` / `.obj` files they name): a clash is an InputError naming the manifest and the
+///   JSON pointer of the job's field (checkBatchFiles).
+/// - Each job's files are staged under temporaryPathFor names and renamed together, statistics
+///   first, then the sidecar `OUT.job.json`, the image last. The image carries the hash of the
+///   job's resolved settings (`penumbra:job_hash`); the sidecar records the same hash and the
+///   image file's size and content hash (FNV-1a 64 of its bytes). With `resume`, a job is
+///   skipped only when its output carries the job's hash AND its size and content hash match
+///   the sidecar: a truncated or altered output is rendered again. A run killed at any moment
+///   and started again loses no job and renders none twice.
+/// - Two runs of one manifest coordinate through a lock file next to it (lockBatchManifest):
+///   the second refuses to start.
 ///
 /// The library prints nothing: progress and per-job outcomes go to callbacks.
 /// Thread safety: runBatch() may be called from any thread; its callbacks are serialized.
@@ -34,6 +43,8 @@ namespace penumbra {
 struct BatchJob {
     std::string name;    ///< for messages: the manifest's "name", else the output as written
     std::string origin;  ///< where it came from: "/jobs/3", "/sweep frame 12", "/sweep/1 frame 0"
+    std::string pointer;  ///< JSON pointer of the job or sweep in the manifest: "/jobs/3", "/sweep/1"
+    long frame = -1;      ///< the frame number of a sweep's job; -1 for an explicit job
     std::string scene;   ///< scene file, resolved against the manifest's directory
     std::string output;  ///< .exr or .png, resolved
     std::string stats;   ///< statistics JSON to write too ("" for none), resolved
@@ -45,14 +56,29 @@ struct BatchJob {
 
 struct BatchManifest {
     std::string file;  ///< the manifest's path, for messages
+    std::string path;  ///< the manifest file as read by loadManifest ("" when parsed from text)
     std::vector<BatchJob> jobs;
 };
 
 /// Reads and validates a manifest; throws InputError (manifest file, JSON pointer, message).
+/// Two jobs that write one file (outputs, sidecars, `stats`; compared by real location, so
+/// `a.exr`, `./a.exr`, `link/a.exr` through a symlink and an absolute path are one file) are
+/// refused naming the later job's field (`/jobs/1/output`, `/sweep/stats`).
 BatchManifest loadManifest(const std::string& path);
 /// Same from text; `file` is used in messages and `baseDir` resolves relative paths.
 BatchManifest parseManifest(const std::string& jsonText, const std::string& file,
                             const std::string& baseDir);
+
+/// Checks every file the batch writes against every file it reads, before anything runs: a
+/// job's output, sidecar or statistics file must not be the manifest, a scene file of any job,
+/// or a file a scene names (`file` of a `.vdb` or mesh obstacle, with the job's overrides
+/// applied), and no two jobs may write one file; `summary` (may be empty) must be none of
+/// these either. Paths are compared by real location (resolvedPath) and, for existing files,
+/// by identity (hard links). Throws InputError naming the manifest and the pointer of the
+/// offending job field (`/jobs/0/stats`), or `summaryFlag` for the summary. Scene files that
+/// cannot be read are skipped here (their jobs fail when run). runBatch calls it.
+void checkBatchFiles(const BatchManifest& manifest, const std::string& summary = "",
+                     const std::string& summaryFlag = "--summary");
 
 /// Replaces `{frame}` and `{frame:0Nd}` / `{frame:Nd}` (N in 1-9: printf's width, zero-padded
 /// or not) in an output template. Throws InputError(file, where) for any other `{...}`.
@@ -111,6 +137,53 @@ std::string jobHash(const BatchJob& job, const std::string& resolvedSceneText);
 /// The sidecar record written next to an output: OUT + ".job.json".
 std::string sidecarPath(const std::string& output);
 
+/// The size and content hash of a file: what a sidecar records of its output and what resume
+/// compares (`output_bytes`, `output_hash`).
+struct FileDigest {
+    uint64_t bytes = 0;
+    std::string hash;  ///< 16 hex digits: FNV-1a 64 of the file's bytes (not cryptographic)
+};
+/// Reads the whole file; throws std::runtime_error naming it when it cannot be read.
+FileDigest digestFile(const std::string& path);
+
+// ---------------------------------------------------------------------------------------------
+// One run at a time
+
+class BatchLock;
+
+/// Takes the lock of `manifestPath` for `shard` without waiting. Throws InputError naming the
+/// manifest (and the process that holds the lock, from the lock file) when another run holds
+/// it. When locking is impossible (a read-only directory, a file system without locks), returns
+/// a lock that is not held and sets `*warning` (if given) to a one-line reason.
+BatchLock lockBatchManifest(const std::string& manifestPath, const Shard& shard,
+                            std::string* warning = nullptr);
+
+/// A lock on a manifest held for a whole run (flock(2), released when destroyed or when the
+/// process ends, also by SIGKILL). The whole batch (shard 0/1) takes `.MANIFEST.lock` next to
+/// the manifest exclusively; shard I of N (N > 1) takes it shared and
+/// `.MANIFEST.shard-I-of-N.lock` exclusively (that file is removed when released), so the
+/// shards of one count run side by side while a second run of the same shard, or of the whole
+/// batch, is refused. Runs of one manifest with different shard counts are not detected.
+class BatchLock {
+public:
+    BatchLock() = default;
+    BatchLock(BatchLock&& other) noexcept;
+    BatchLock& operator=(BatchLock&& other) noexcept;
+    BatchLock(const BatchLock&) = delete;
+    BatchLock& operator=(const BatchLock&) = delete;
+    ~BatchLock();
+
+    bool held() const { return mMainFd >= 0; }
+    const std::string& path() const { return mMainPath; }  ///< the manifest's lock file
+    void release();
+
+private:
+    friend BatchLock lockBatchManifest(const std::string&, const Shard&, std::string*);
+    int mMainFd = -1, mShardFd = -1;
+    bool mExclusive = false;
+    std::string mMainPath, mShardPath;
+};
+
 // ---------------------------------------------------------------------------------------------
 // Running
 
@@ -135,7 +208,11 @@ struct BatchProgressInfo {
 
 struct BatchOptions {
     int threads = 0;      ///< arena size shared by all jobs and pixels; 0: every hardware thread
-    bool resume = false;  ///< skip jobs whose output exists with the same job hash
+    bool resume = false;  ///< skip jobs whose output exists, verified (hash, size, content)
+    /// The summary the caller writes after the run (--summary), "" for none: checked with the
+    /// batch's files before any job runs (checkBatchFiles), and its directory's stale
+    /// temporaries removed. runBatch does not write it.
+    std::string summary;
 };
 
 struct BatchCallbacks {
@@ -146,9 +223,11 @@ struct BatchCallbacks {
 };
 
 /// Runs the jobs at positions `selected` (e.g. from shardJobs) and returns one result per
-/// selected job, in the order of `selected`. Stale temporary files of the selected outputs left
-/// by a killed run are removed first. Never throws for a job's failure; throws InputError only
-/// for bad options (`threads` out of [0, 1024], a position out of range).
+/// selected job, in the order of `selected`. First checks the batch's files (checkBatchFiles)
+/// and removes, in the directories of the selected outputs, the temporaries left by dead
+/// processes on this host (removeStaleTemporaries: a live run's are never touched). Never
+/// throws for a job's failure; throws InputError for bad options (`threads` out of [0, 1024], a
+/// position out of range) and for clashing files. It takes no lock: lockBatchManifest does.
 std::vector<JobResult> runBatch(const BatchManifest& manifest,
                                 const std::vector<size_t>& selected, const BatchOptions& options,
                                 const BatchCallbacks& callbacks = {});

@@ -2,7 +2,8 @@
 // [--summary FILE.csv|.json] [--list] [--quiet]`: runs a batch manifest (docs/batch.md) with
 // the library's batch runner, reports progress on stderr, failed jobs as they happen, and a
 // summary. Exit codes: 0 every selected job rendered or skipped, 1 at least one job failed,
-// 2 bad options or manifest (nothing was run).
+// 2 bad options or manifest, clashing files, or another run of the same manifest (and shard)
+// holding its lock (nothing was run).
 #include <unistd.h>
 
 #include <chrono>
@@ -116,6 +117,14 @@ int runBatchCommand(const BatchCommandOptions& o) {
         return 0;
     }
 
+    // One run of a manifest (or of one shard of it) at a time: a second one refuses rather than
+    // waits (docs/batch.md). Held until this function returns.
+    std::string lockWarning;
+    const BatchLock lock = lockBatchManifest(o.manifest, shard, &lockWarning);
+    if (!lockWarning.empty() && !o.quiet) {
+        std::cerr << "penumbra: warning: " << lockWarning << "\n";
+    }
+
     BatchReporter reporter(!o.quiet);
     BatchCallbacks callbacks;
     callbacks.progress = [&](const BatchProgressInfo& p) { reporter.update(p); };
@@ -129,6 +138,7 @@ int runBatchCommand(const BatchCommandOptions& o) {
     BatchOptions options;
     options.threads = o.jobs;
     options.resume = o.resume;
+    options.summary = o.summary;  // checked against the batch's files before any job runs
     const auto start = std::chrono::steady_clock::now();
     const std::vector<JobResult> results = runBatch(manifest, selected, options, callbacks);
     const double seconds =
