@@ -903,6 +903,23 @@ struct RunState {
     std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
     std::atomic<size_t> next{0};
     std::mutex mutex;
+    /// Level sets shared by the jobs of one scene file (by real path), with how many of those
+    /// jobs have not ended: the last one to end frees them.
+    struct SharedScene {
+        std::shared_ptr<LevelSetCache> cache = std::make_shared<LevelSetCache>();
+        size_t jobsLeft = 0;
+    };
+    std::map<std::string, SharedScene> scenes;  // guarded by `mutex`
+
+    std::shared_ptr<LevelSetCache> cacheFor(const BatchJob& job) {
+        std::lock_guard<std::mutex> lock(mutex);
+        const auto it = scenes.find(resolvedPath(job.scene));
+        return it == scenes.end() ? nullptr : it->second.cache;
+    }
+    void jobEnded(const BatchJob& job) {  // with `mutex` held
+        const auto it = scenes.find(resolvedPath(job.scene));
+        if (it != scenes.end() && --it->second.jobsLeft == 0) scenes.erase(it);
+    }
     std::vector<JobResult> results;
     std::vector<double> fraction;  // rows done / rows of running jobs
     BatchProgressInfo info;
@@ -931,7 +948,10 @@ void runJob(RunState& run, size_t slot) {
         if (run.options.resume && outputVerified(job, hash, result.shadowRays)) {
             result.status = JobStatus::Skipped;
         } else {
-            const Scene scene = parseScene(text, job.scene, parentDir(job.scene));
+            const std::shared_ptr<LevelSetCache> cache = run.cacheFor(job);
+            const Scene scene = parseScene(text, job.scene, parentDir(job.scene), cache.get());
+            result.levelSetsBuilt = scene.build.levelSetsBuilt;
+            result.levelSetsShared = scene.build.levelSetsShared;
             // The files the scene read were checked from its text before the run
             // (checkBatchFiles); this also catches a reference that check could not see.
             for (const auto& [path, pointer] : scene.inputFiles) {
@@ -1004,6 +1024,7 @@ void runJob(RunState& run, size_t slot) {
     std::replace(result.error.begin(), result.error.end(), '\n', ' ');
 
     std::lock_guard<std::mutex> lock(run.mutex);
+    run.jobEnded(job);
     run.results[slot] = result;
     run.fraction[slot] = 0.0;
     ++run.info.finished;
@@ -1528,6 +1549,7 @@ std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector
     run.files = registerBatchFiles(manifest, options.summary, "--summary");
     run.results.resize(selected.size());
     run.fraction.assign(selected.size(), 0.0);
+    for (size_t index : selected) ++run.scenes[resolvedPath(manifest.jobs[index].scene)].jobsLeft;
     run.info.total = selected.size();
     removeStaleBatchTemporaries(manifest, selected, options.summary);
 
@@ -1604,6 +1626,8 @@ void writeBatchSummary(const std::string& path, const BatchManifest& manifest, c
                             {"error", r.error},
                             {"seconds", r.seconds},
                             {"shadow_rays", r.shadowRays},
+                            {"level_sets_built", r.levelSetsBuilt},
+                            {"level_sets_shared", r.levelSetsShared},
                             {"output", job.output},
                             {"scene", job.scene}});
         }

@@ -22,6 +22,8 @@
 #include <set>
 #include <stdexcept>
 #include <sstream>
+#include <iomanip>
+#include <mutex>
 #include <variant>
 
 #include "penumbra/error.h"
@@ -200,6 +202,7 @@ struct Context {
     /// Every file the scene names (meshes, .vdb files), as read, with the JSON pointer naming
     /// it: Scene::inputFiles.
     mutable std::vector<std::pair<std::string, std::string>> inputs;
+    LevelSetCache* cache = nullptr;  ///< shares level sets between loads (batch jobs)
 };
 
 class Node {
@@ -503,6 +506,10 @@ struct ObstaclePlan {
     Rgb albedo{0.8};
     double voxelSize = 0.0, halfWidth = 0.0;  ///< implicit and analytic obstacles
     ShapePlan shape;
+    /// What decides the level sets it builds or reads (LevelSetCache): its JSON, the voxel size
+    /// and band it resolved to, the content of every file it reads, and the bounds given to its
+    /// unbounded half-spaces.
+    std::string cacheKey;
 };
 
 /// The default limit on the memory of the level sets to build: 16 GiB, or three quarters of
@@ -858,6 +865,24 @@ void checkIndexRange(const Node& node, const Box3& bounds, double voxel) {
     }
 }
 
+/// FNV-1a 64 over a file's bytes (its content, for LevelSetCache keys).
+std::string contentDigest(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    uint64_t h = 1469598103934665603ull;
+    char buf[1 << 16];
+    while (in.read(buf, sizeof buf) || in.gcount() > 0) {
+        const std::streamsize n = in.gcount();
+        for (std::streamsize i = 0; i < n; ++i) {
+            h ^= static_cast<unsigned char>(buf[i]);
+            h *= 1099511628211ull;
+        }
+        if (!in) break;
+    }
+    char text[17];
+    std::snprintf(text, sizeof text, "%016llx", static_cast<unsigned long long>(h));
+    return text;
+}
+
 ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSettings& global) {
     const std::string kind = readType(node, "obstacle");
     std::vector<std::string> keys = {"type", "name", "albedo", "transform"};
@@ -1046,10 +1071,44 @@ ObstacleBuild reportFor(const std::string& name, const std::string& type, const 
 }
 
 void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out,
-                    BuildReport& report) {
+                    BuildReport& report, LevelSetCache* cache) {
     const std::string name =
         plan.name.empty() ? "obstacle_" + std::to_string(plan.index) : plan.name;
     const Clock::time_point start = Clock::now();
+    const bool cacheable = cache && !std::holds_alternative<AnalyticSphere>(plan.shape) &&
+                           !std::holds_alternative<AnalyticBox>(plan.shape);
+    if (cacheable) {
+        const std::vector<Obstacle> shared = cache->find(plan.cacheKey);
+        if (!shared.empty()) {
+            // Built by an earlier load of the same obstacle: the same level sets (and their
+            // far-field companions, built once on first use), with this scene's albedo.
+            for (const Obstacle& o : shared) {
+                Obstacle copy = o;
+                copy.albedo = plan.albedo;
+                out.push_back(copy);
+                ObstacleBuild r = reportFor(copy.name, plan.type, std::get<LevelSetPtr>(copy.shape));
+                r.shared = true;
+                r.note = "shared with an earlier load";
+                report.obstacles.push_back(r);
+            }
+            ++report.levelSetsShared;
+            return;
+        }
+    }
+    const size_t first = out.size();
+    struct Remember {  // on the way out of a build, hands what it added to the cache
+        LevelSetCache* cache;
+        const std::string& key;
+        const std::vector<Obstacle>& out;
+        size_t first;
+        BuildReport& report;
+        bool armed = false;
+        ~Remember() {
+            if (!armed) return;
+            ++report.levelSetsBuilt;
+            if (cache) cache->insert(key, std::vector<Obstacle>(out.begin() + first, out.end()));
+        }
+    } remember{cacheable ? cache : nullptr, plan.cacheKey, out, first, report};
     auto add = [&](std::string n, ObstacleShape shape) {
         Obstacle o{std::move(n), std::move(shape), plan.albedo};
         o.voxelSize = plan.voxelSize;
@@ -1071,6 +1130,7 @@ void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obs
             rethrowUnder(e, file, plan.pointer);
         }
         add(name, ls);
+        remember.armed = true;
         ObstacleBuild r = reportFor(name, plan.type, ls);
         r.estimatedBytes = estimatedBytes(plan);
         r.seconds = secondsSince(start);
@@ -1086,6 +1146,7 @@ void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obs
             rethrowUnder(e, file, plan.pointer);
         }
         const double seconds = secondsSince(start);
+        remember.armed = true;
         for (size_t j = 0; j < grids.size(); ++j) {
             const LevelSetPtr g = transformLevelSet(grids[j], vdb.transform);
             const std::string gridName = describe(*g).name;
@@ -1151,7 +1212,16 @@ Scene parseDocument(const Json& root, const Context& ctx) {
         const Node obstacles = top.at("obstacles");
         obstacles.array();
         for (size_t i = 0; i < obstacles.json().size(); ++i) {
+            const size_t inputsBefore = ctx.inputs.size();
             plans.push_back(parseObstacle(obstacles.element(i), i, scene.levelSet));
+            ObstaclePlan& p = plans.back();
+            std::ostringstream key;
+            key << std::setprecision(17) << ctx.baseDir << '|' << obstacles.element(i).json().dump()
+                << '|' << p.voxelSize << '|' << p.halfWidth << '|' << i;
+            for (size_t k = inputsBefore; k < ctx.inputs.size(); ++k) {
+                key << '|' << ctx.inputs[k].first << ':' << contentDigest(ctx.inputs[k].first);
+            }
+            p.cacheKey = key.str();
         }
     }
 
@@ -1169,6 +1239,12 @@ Scene parseDocument(const Json& root, const Context& ctx) {
             }
         });
         if (unbounded) {
+            std::ostringstream key;
+            key << std::setprecision(17) << "|bounds " << bounds.lo.x << ' ' << bounds.lo.y << ' '
+                << bounds.lo.z << ' ' << bounds.hi.x << ' ' << bounds.hi.y << ' ' << bounds.hi.z;
+            p.cacheKey += key.str();
+        }
+        if (unbounded) {
             checkIndexRange(Node(root, p.pointer, ctx), shapeBounds(implicit->node),
                             implicit->voxelSize);
         }
@@ -1180,7 +1256,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     const Clock::time_point start = Clock::now();
     for (ObstaclePlan& p : plans) {
         try {
-            buildObstacles(p, ctx.file, scene.obstacles, scene.build);
+            buildObstacles(p, ctx.file, scene.obstacles, scene.build, ctx.cache);
         } catch (const std::bad_alloc&) {
             // A runtime failure (exit 1), not bad input, but the user needs to know which one.
             throw std::runtime_error(ctx.file + ": " + p.pointer +
@@ -1198,13 +1274,14 @@ Scene parseDocument(const Json& root, const Context& ctx) {
 
 // ---------------------------------------------------------------------------------------------
 
-Scene parseScene(const std::string& jsonText, const std::string& file, const std::string& baseDir) {
-    const Context ctx{file, baseDir, {}};
+Scene parseScene(const std::string& jsonText, const std::string& file, const std::string& baseDir,
+                 LevelSetCache* cache) {
+    const Context ctx{file, baseDir, {}, cache};
     const Json root = parseText(jsonText, file);
     return parseDocument(root, ctx);
 }
 
-Scene loadScene(const std::string& path) {
+Scene loadScene(const std::string& path, LevelSetCache* cache) {
     std::error_code ec;
     if (std::filesystem::is_directory(path, ec)) {
         throw InputError(path, "", "is a directory, not a scene file");
@@ -1221,7 +1298,7 @@ Scene loadScene(const std::string& path) {
     if (in.bad()) throw InputError(path, "", "cannot read the scene file");
     std::string baseDir = std::filesystem::path(path).parent_path().string();
     if (baseDir.empty()) baseDir = ".";
-    return parseScene(text.str(), path, baseDir);
+    return parseScene(text.str(), path, baseDir, cache);
 }
 
 size_t Scene::lightIndex(const std::string& name) const {
@@ -1338,7 +1415,9 @@ std::string BuildReport::toText() const {
     }
     out << "level sets: " << grouped(activeVoxels()) << " voxels, " << mebibytes(double(bytes()))
         << " in " << secondsText(seconds) << " (estimate " << mebibytes(estimatedBytes)
-        << ", limit " << bytesText(memoryLimitBytes) << ")\n";
+        << ", limit " << bytesText(memoryLimitBytes);
+    if (levelSetsShared > 0) out << "; " << levelSetsShared << " obstacle(s) shared with an earlier load";
+    out << ")\n";
     return out.str();
 }
 
@@ -1359,9 +1438,28 @@ std::string BuildReport::toJson() const {
                                   {"bytes", o.bytes},
                                   {"estimated_bytes", o.estimatedBytes},
                                   {"seconds", o.seconds},
+                                  {"shared", o.shared},
                                   {"note", o.note}});
     }
+    j["level_sets_built"] = levelSetsBuilt;
+    j["level_sets_shared"] = levelSetsShared;
     return j.dump();
+}
+
+std::vector<Obstacle> LevelSetCache::find(const std::string& key) const {
+    std::lock_guard<std::mutex> lock(mMutex);
+    const auto it = mEntries.find(key);
+    return it == mEntries.end() ? std::vector<Obstacle>{} : it->second;
+}
+
+void LevelSetCache::insert(const std::string& key, std::vector<Obstacle> obstacles) {
+    std::lock_guard<std::mutex> lock(mMutex);
+    mEntries.emplace(key, std::move(obstacles));  // a concurrent build of the same key: keep the first
+}
+
+size_t LevelSetCache::size() const {
+    std::lock_guard<std::mutex> lock(mMutex);
+    return mEntries.size();
 }
 
 std::vector<LevelSetPtr> Scene::obstacleLevelSets() const {

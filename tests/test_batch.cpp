@@ -786,3 +786,67 @@ TEST_CASE("three shards run as separate processes render the whole batch once", 
     CHECK(std::count(listed.begin(), listed.end(), '\n') == 3);  // jobs 1, 5, 9
     CHECK(listed.find("out/s05.png") != std::string::npos);
 }
+
+TEST_CASE("batch: jobs of one scene build its level sets once", "[batch]") {
+    const TempDir tmp("shared_level_sets");
+    const fs::path& dir = tmp.path;
+    // A level-set torus and a mesh-free CSG: built for the first frame, shared by the others.
+    writeFile(dir / "a.json", R"({
+      "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "width": 12, "height": 12},
+      "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0]}],
+      "obstacles": [{"type": "torus", "center": [0, 0, 1], "major_radius": 0.5,
+                     "minor_radius": 0.15},
+                    {"type": "sphere", "center": [0.8, 0, 0.6], "radius": 0.2, "analytic": true}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
+      "level_set": {"voxel_size": 0.04}
+    })");
+    writeFile(dir / "m.json", R"({"sweep": {"scene": "a.json", "output": "out/f_{frame}.exr",
+      "frames": 4, "vary": {"lights/0/corner": {"from": [-1.5, -1, 4], "to": [0.5, -1, 4]}}}})");
+    BatchOptions options;
+    options.threads = 1;  // one job after another: later frames find the first one's level sets
+    const BatchManifest m = loadManifest((dir / "m.json").string());
+    const std::vector<JobResult> results = runBatch(m, {0, 1, 2, 3}, options);
+    REQUIRE(results.size() == 4);
+    int built = 0, shared = 0;
+    for (const JobResult& r : results) {
+        CHECK(r.status == JobStatus::Rendered);
+        built += r.levelSetsBuilt;
+        shared += r.levelSetsShared;
+    }
+    CHECK(built == 1);   // the torus, once (the analytic sphere needs none)
+    CHECK(shared == 3);  // and taken by the three later frames
+
+    // A load without the batch's cache builds its own.
+    const Scene alone = loadScene((dir / "a.json").string());
+    CHECK(alone.build.levelSetsBuilt == 1);
+    CHECK(alone.build.levelSetsShared == 0);
+}
+
+TEST_CASE("scene loads share level sets only for the same obstacle and files", "[batch][scene]") {
+    const TempDir tmp("cache_keys");
+    const fs::path& dir = tmp.path;
+    const std::string body = R"("lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0]}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}])";
+    auto scene = [&](const std::string& obstacle, double voxel) {
+        return "{" + body + R"(, "obstacles": [)" + obstacle +
+               R"(], "level_set": {"voxel_size": )" + std::to_string(voxel) + "}}";
+    };
+    const std::string sphere = R"({"type": "sphere", "center": [0, 0, 1], "radius": 0.4})";
+    LevelSetCache cache;
+    const Scene a = parseScene(scene(sphere, 0.05), "a.json", dir.string(), &cache);
+    const Scene b = parseScene(scene(sphere, 0.05), "a.json", dir.string(), &cache);
+    CHECK(a.build.levelSetsBuilt == 1);
+    CHECK(b.build.levelSetsShared == 1);
+    CHECK(std::get<LevelSetPtr>(a.obstacles[0].shape) == std::get<LevelSetPtr>(b.obstacles[0].shape));
+    // Another voxel size, another radius: built anew.
+    CHECK(parseScene(scene(sphere, 0.04), "a.json", dir.string(), &cache).build.levelSetsBuilt == 1);
+    const std::string bigger = R"({"type": "sphere", "center": [0, 0, 1], "radius": 0.5})";
+    CHECK(parseScene(scene(bigger, 0.05), "a.json", dir.string(), &cache).build.levelSetsBuilt == 1);
+    // A mesh file whose content changed between loads: built anew.
+    writeFile(dir / "t.obj", "v 0 0 1\nv 1 0 1\nv 0 1 1\nv 0 0 2\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n");
+    const std::string mesh = R"({"type": "mesh", "file": "t.obj"})";
+    CHECK(parseScene(scene(mesh, 0.05), "a.json", dir.string(), &cache).build.levelSetsBuilt == 1);
+    CHECK(parseScene(scene(mesh, 0.05), "a.json", dir.string(), &cache).build.levelSetsShared == 1);
+    writeFile(dir / "t.obj", "v 0 0 1\nv 1.5 0 1\nv 0 1 1\nv 0 0 2\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n");
+    CHECK(parseScene(scene(mesh, 0.05), "a.json", dir.string(), &cache).build.levelSetsBuilt == 1);
+}

@@ -196,6 +196,9 @@ struct JobResult {
     std::string error;        ///< one line, for failed jobs
     double seconds = 0.0;     ///< this run's wall time: load, render, write (0 if skipped)
     uint64_t shadowRays = 0;  ///< of the render that made the output (read back when skipped)
+    /// Obstacles whose level sets this job built (or read), and those it took from an earlier
+    /// job of the same scene (the batch shares them while jobs of that scene remain).
+    int levelSetsBuilt = 0, levelSetsShared = 0;
 };
 
 struct BatchProgressInfo {

@@ -8,6 +8,8 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -60,6 +62,7 @@ struct ObstacleBuild {
     double estimatedBytes = 0.0;  ///< the pre-build estimate checked against the memory limit
     double seconds = 0.0;      ///< wall time to build it, or to read its file
     std::string note;          ///< e.g. "capped 2 holes", "read from x.vdb"
+    bool shared = false;       ///< taken from a LevelSetCache: nothing was built or read
 };
 
 /// The memory and time report of loadScene's building pass, for render statistics and
@@ -69,6 +72,8 @@ struct BuildReport {
     double seconds = 0.0;                  ///< wall time of building and reading all of them
     double estimatedBytes = 0.0;           ///< sum of the estimates
     double memoryLimitBytes = 0.0;         ///< the limit they were checked against
+    int levelSetsBuilt = 0;   ///< obstacles whose level sets this load built or read
+    int levelSetsShared = 0;  ///< obstacles whose level sets came from a LevelSetCache
 
     uint64_t activeVoxels() const;
     uint64_t bytes() const;
@@ -114,11 +119,29 @@ struct Scene {
     std::vector<LevelSetPtr> obstacleLevelSets() const;
 };
 
+/// Level sets shared between loads of the same obstacles in one process (the jobs of a batch
+/// that render one scene): keyed by the obstacle's JSON and position, the voxel size and band it
+/// resolves to, the content of every file it reads and the bounds of its unbounded half-spaces.
+/// A load that finds its key takes the same level sets (their far-field companions are built
+/// once, on first use, and shared too). Thread-safe; two loads that miss at the same moment both
+/// build. Entries live as long as the cache.
+class LevelSetCache {
+public:
+    std::vector<Obstacle> find(const std::string& key) const;  ///< empty when absent
+    void insert(const std::string& key, std::vector<Obstacle> obstacles);
+    size_t size() const;
+
+private:
+    mutable std::mutex mMutex;
+    std::map<std::string, std::vector<Obstacle>> mEntries;
+};
+
 /// Loads and validates a scene file; builds the level sets of implicit obstacles, meshes and
 /// CSG trees (shape.h) and reads the .vdb files. Scene::build reports what that cost.
-Scene loadScene(const std::string& path);
+Scene loadScene(const std::string& path, LevelSetCache* cache = nullptr);
 
 /// Same from text; `file` is used in messages and `baseDir` resolves relative paths.
-Scene parseScene(const std::string& jsonText, const std::string& file, const std::string& baseDir);
+Scene parseScene(const std::string& jsonText, const std::string& file, const std::string& baseDir,
+                 LevelSetCache* cache = nullptr);
 
 }  // namespace penumbra
