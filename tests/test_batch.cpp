@@ -22,6 +22,7 @@
 #include <thread>
 #include <vector>
 
+#include "support/cli.h"
 #include "penumbra/batch.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
@@ -47,84 +48,16 @@ const char* kScene = R"({
   "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}]
 })";
 
-// One directory per test and process: several builds' test suites may run at once on one
-// machine, and a batch test must not see another run's outputs.
-fs::path makeTempDir(const std::string& name) {
-    const fs::path dir = fs::temp_directory_path() /
-                         ("penumbra_batch_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
-
-// A test's directory, removed at the end of the test unless PENUMBRA_KEEP_TEST_DIRS is set.
-struct TempDir {
-    fs::path path;
-    explicit TempDir(const std::string& name) : path(makeTempDir(name)) {}
-    TempDir(const TempDir&) = delete;
-    TempDir& operator=(const TempDir&) = delete;
-    ~TempDir() {
-        if (std::getenv("PENUMBRA_KEEP_TEST_DIRS")) return;
-        std::error_code ec;
-        fs::remove_all(path, ec);
-    }
-};
-
-std::string readFile(const fs::path& p) {
-    std::ifstream f(p);
-    std::stringstream ss;
-    ss << f.rdbuf();
-    return ss.str();
-}
-
-void writeFile(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
-
-// Starts the program with extra environment variables; stdout and stderr go to files in `dir`.
-pid_t spawnPenumbra(const std::vector<std::string>& args, const fs::path& dir,
-                    const std::string& tag,
-                    const std::vector<std::string>& extraEnv = {}) {
-    std::vector<std::string> argvStore = {PENUMBRA_BINARY};
-    argvStore.insert(argvStore.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (std::string& a : argvStore) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    // The test itself may run inside a Slurm array task: drop variables that select a shard.
-    std::vector<std::string> envStore;
-    for (char** e = environ; *e; ++e) {
-        const std::string v(*e);
-        if (v.rfind("SLURM_ARRAY_", 0) == 0 || v.rfind("JOB_COMPLETION_INDEX=", 0) == 0 ||
-            v.rfind("PENUMBRA_SHARD_COUNT=", 0) == 0) {
-            continue;
-        }
-        envStore.push_back(v);
-    }
-    envStore.insert(envStore.end(), extraEnv.begin(), extraEnv.end());
-    std::vector<char*> envp;
-    for (std::string& e : envStore) envp.push_back(e.data());
-    envp.push_back(nullptr);
-
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    const std::string out = (dir / (tag + ".out")).string();
-    const std::string err = (dir / (tag + ".err")).string();
-    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
-    posix_spawn_file_actions_destroy(&actions);
-    REQUIRE(rc == 0);
-    return pid;
-}
-
-int waitExit(pid_t pid) {
-    int status = 0;
-    REQUIRE(waitpid(pid, &status, 0) == pid);
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using test::readFile;
+using test::runPenumbraSpawned;
+using test::spawnPenumbra;
+using test::TempDir;
+using test::waitExit;
+using test::writeFile;
 
 int runPenumbra(const std::vector<std::string>& args, const fs::path& dir, const std::string& tag,
                 const std::vector<std::string>& extraEnv = {}) {
-    return waitExit(spawnPenumbra(args, dir, tag, extraEnv));
+    return runPenumbraSpawned(args, dir, tag, extraEnv);
 }
 
 struct SummaryRow {

@@ -23,6 +23,7 @@
 #include <thread>
 #include <vector>
 
+#include "support/cli.h"
 #include "penumbra/batch.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
@@ -71,75 +72,18 @@ f 3 4 8 7
 f 4 1 5 8
 )";
 
-struct TempDir {
-    fs::path path;
-    explicit TempDir(const std::string& name)
-        : path(fs::temp_directory_path() /
-               ("penumbra_batchrel_" + name + "_" + std::to_string(::getpid()))) {
-        fs::remove_all(path);
-        fs::create_directories(path);
-    }
-    TempDir(const TempDir&) = delete;
-    TempDir& operator=(const TempDir&) = delete;
-    ~TempDir() {
-        if (std::getenv("PENUMBRA_KEEP_TEST_DIRS")) return;
-        std::error_code ec;
-        fs::remove_all(path, ec);
-    }
+using test::readFile;
+using test::spawnPenumbra;
+using test::waitExit;
+using test::writeFile;
+
+struct TempDir : test::TempDir {
+    explicit TempDir(const std::string& name) : test::TempDir(name, "batchrel") {}
 };
-
-std::string readFile(const fs::path& p) {
-    std::ifstream f(p, std::ios::binary);
-    std::stringstream ss;
-    ss << f.rdbuf();
-    return ss.str();
-}
-
-void writeFile(const fs::path& p, const std::string& text) {
-    std::ofstream(p, std::ios::binary) << text;
-}
-
-pid_t spawnPenumbra(const std::vector<std::string>& args, const fs::path& dir,
-                    const std::string& tag) {
-    std::vector<std::string> argvStore = {PENUMBRA_BINARY};
-    argvStore.insert(argvStore.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (std::string& a : argvStore) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    std::vector<std::string> envStore;  // without the variables that select a shard
-    for (char** e = environ; *e; ++e) {
-        const std::string v(*e);
-        if (v.rfind("SLURM_ARRAY_", 0) == 0 || v.rfind("JOB_COMPLETION_INDEX=", 0) == 0 ||
-            v.rfind("PENUMBRA_SHARD_COUNT=", 0) == 0) {
-            continue;
-        }
-        envStore.push_back(v);
-    }
-    std::vector<char*> envp;
-    for (std::string& e : envStore) envp.push_back(e.data());
-    envp.push_back(nullptr);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    const std::string out = (dir / (tag + ".out")).string();
-    const std::string err = (dir / (tag + ".err")).string();
-    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
-    posix_spawn_file_actions_destroy(&actions);
-    REQUIRE(rc == 0);
-    return pid;
-}
-
-int waitExit(pid_t pid) {
-    int status = 0;
-    REQUIRE(waitpid(pid, &status, 0) == pid);
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 int runPenumbra(const std::vector<std::string>& args, const fs::path& dir,
                 const std::string& tag) {
-    return waitExit(spawnPenumbra(args, dir, tag));
+    return test::runPenumbraSpawned(args, dir, tag);
 }
 
 int countTemporaries(const fs::path& dir) {
@@ -414,7 +358,8 @@ TEST_CASE("B06: a second penumbra batch of a manifest being run refuses; the fir
     const TempDir tmp("lock_cli");
     const fs::path& dir = tmp.path;
     // A level-set sphere with per-pixel ACI: about a quarter of a second per frame on one
-    // thread, so the first run is still going when the second starts.
+    // thread (the level set is built once and shared by the frames), 24 frames: the first run
+    // is still going for seconds after its first output, when the second starts.
     writeFile(dir / "a.json", R"({
       "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "width": 48, "height": 48},
       "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],
@@ -423,9 +368,9 @@ TEST_CASE("B06: a second penumbra batch of a manifest being run refuses; the fir
       "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
       "level_set": {"voxel_size": 0.02}
     })");
-    const int frames = 8;
+    const int frames = 24;
     writeFile(dir / "m.json", R"({"sweep": {"scene": "a.json", "output": "out/k_{frame:02d}.exr",
-      "frames": 8, "method": "aci-pixel",
+      "frames": 24, "method": "aci-pixel",
       "vary": {"lights/0/corner": {"from": [-1.5, -1, 4], "to": [0.5, -1, 4]}}}})");
     const std::string m = (dir / "m.json").string();
 

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "support/cli.h"
 #include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
@@ -23,45 +24,19 @@ using namespace penumbra;
 
 namespace {
 
-struct Run {
-    int exitCode;
-    std::string out;
-    std::string err;
-};
-
-std::string readFile(const fs::path& p) {
-    std::ifstream f(p);
-    std::stringstream ss;
-    ss << f.rdbuf();
-    return ss.str();
-}
+using test::readFile;
+using Run = test::Run;
 
 /// Runs a command line through the shell, stdin from `input`.
 Run runShell(const std::string& command, const std::string& input, const fs::path& dir) {
-    const fs::path in = dir / "stdin.txt", err = dir / "stderr.txt";
-    std::ofstream(in) << input;
-    const std::string cmd = command + " < " + in.string() + " 2> " + err.string();
-    FILE* pipe = popen(cmd.c_str(), "r");
-    REQUIRE(pipe);
-    std::string out;
-    char buf[4096];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
-    const int status = pclose(pipe);
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out, readFile(err)};
+    return test::runShell(command, dir, input);
 }
 
 Run penumbraRun(const std::string& args, const fs::path& dir, const std::string& input = "") {
-    return runShell(std::string(PENUMBRA_BINARY) + " " + args, input, dir);
+    return test::runPenumbra(args, dir, input);
 }
 
-fs::path makeTempDir(const std::string& name) {
-    const fs::path dir =
-        fs::temp_directory_path() / ("penumbra_bake_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path makeTempDir(const std::string& name) { return test::makeTempDir("bake", name); }
 
 const char* kLight =
     R"({"name": "key", "corner": [-1,-1,3], "edge_u": [0,2,0], "edge_v": [2,0,0]})";

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "support/cli.h"
 #include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 
@@ -18,40 +19,15 @@ using namespace penumbra;
 
 namespace {
 
-struct Run {
-    int exitCode;
-    std::string out;
-};
+using test::readFile;
+using Run = test::Run;
 
-// Runs the program through the shell, stdin from `input`, stderr into `errFile`.
+// Runs the program with `input` on stdin; stderr goes to DIR/stderr.txt.
 Run runPenumbra(const std::string& args, const std::string& input, const fs::path& dir) {
-    const fs::path in = dir / "stdin.csv";
-    std::ofstream(in) << input;
-    const std::string cmd = std::string(PENUMBRA_BINARY) + " " + args + " < " + in.string() +
-                            " 2> " + (dir / "stderr.txt").string();
-    FILE* pipe = popen(cmd.c_str(), "r");
-    REQUIRE(pipe);
-    std::string out;
-    char buf[4096];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
-    const int status = pclose(pipe);
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out};
+    return test::runPenumbra(args, dir, input);
 }
 
-std::string readFile(const fs::path& p) {
-    std::ifstream f(p);
-    std::stringstream ss;
-    ss << f.rdbuf();
-    return ss.str();
-}
-
-fs::path makeTempDir(const std::string& name) {
-    const fs::path dir = fs::temp_directory_path() / ("penumbra_probe_" + name);
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path makeTempDir(const std::string& name) { return test::makeTempDir("probe", name); }
 
 const char* kScene = R"({
   "lights": [{"name": "key", "corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0],

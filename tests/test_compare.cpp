@@ -14,6 +14,7 @@
 #include "penumbra/compare.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "support/cli.h"
 
 using namespace penumbra;
 namespace fs = std::filesystem;
@@ -33,33 +34,13 @@ Image ramp(int w, int h) {
     return img;
 }
 
-struct Run {
-    int exitCode;
-    std::string out, err;
-};
+using Run = test::Run;
 
 Run runPenumbra(const std::string& args, const fs::path& dir) {
-    const fs::path errFile = dir / "stderr.txt";
-    const std::string cmd = std::string(PENUMBRA_BINARY) + " " + args + " 2> " + errFile.string();
-    FILE* pipe = popen(cmd.c_str(), "r");
-    REQUIRE(pipe);
-    std::string out;
-    char buf[4096];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
-    const int status = pclose(pipe);
-    std::ifstream f(errFile);
-    std::stringstream err;
-    err << f.rdbuf();
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out, err.str()};
+    return test::runPenumbra(args, dir);
 }
 
-fs::path makeTempDir(const std::string& name) {
-    const fs::path dir = fs::temp_directory_path() / ("penumbra_compare_" + name);
-    fs::remove_all(dir);
-    fs::create_directories(dir);
-    return dir;
-}
+fs::path makeTempDir(const std::string& name) { return test::makeTempDir("compare", name); }
 
 }  // namespace
 

@@ -638,3 +638,21 @@ TEST_CASE("E38 bake: an analytic obstacle too large to voxelize", "[errors]") {
     CHECK(readFile(c.path("out.vdb")) == kPrevious);
     CHECK(c.newFiles().empty());
 }
+
+TEST_CASE("E39 a level-set band too wide for the memory limit", "[errors]") {
+    Case c("e39");
+    // half_width 1000 around a 0.4 sphere at voxel 0.02: the band's volume, not its area times
+    // its width, decides the estimate (~51 GiB), refused before anything is built.
+    expectRefused(c, sceneWith(R"("obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.4}],
+      "level_set": {"voxel_size": 0.02, "half_width": 1000})"),
+                  "", 2, {"scene.json: /obstacles/0: would need ~", "GiB for its level set"},
+                  addressLimit("2097152"));
+}
+
+TEST_CASE("E40 more threads than cores: no warning from TBB under --quiet", "[errors]") {
+    Case c("e40");
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o out.exr -q --threads 64");
+    CHECK(c.exitCode == 0);
+    CHECK(readFile(c.path("stderr.txt")).empty());
+}
