@@ -546,10 +546,10 @@ private:
         if (obj.contains("width")) spec.width = readInt(obj["width"], at("width"), 1, 65536);
         if (obj.contains("height")) spec.height = readInt(obj["height"], at("height"), 1, 65536);
         if (obj.contains("aci_grid")) {
-            spec.aciGrid = readInt(obj["aci_grid"], at("aci_grid"), 1, 32);
+            spec.aciGrid = readInt(obj["aci_grid"], at("aci_grid"), kAciGridRange.lo, kAciGridRange.hi);
         }
         if (obj.contains("aci_steps")) {
-            spec.aciSteps = readInt(obj["aci_steps"], at("aci_steps"), 1, 12);
+            spec.aciSteps = readInt(obj["aci_steps"], at("aci_steps"), kAciStepsRange.lo, kAciStepsRange.hi);
         }
         if (obj.contains("aci_mode")) {
             const std::string mode = readString(obj["aci_mode"], at("aci_mode"));
@@ -560,10 +560,10 @@ private:
             }
         }
         if (obj.contains("max_span")) {
-            spec.maxSpan = readInt(obj["max_span"], at("max_span"), 1, 4096);
+            spec.maxSpan = readInt(obj["max_span"], at("max_span"), kMaxSpanRange.lo, kMaxSpanRange.hi);
         }
         if (obj.contains("samples")) {
-            spec.samples = readInt(obj["samples"], at("samples"), 1, 1 << 20);
+            spec.samples = readInt(obj["samples"], at("samples"), kMcSamplesRange.lo, kMcSamplesRange.hi);
             spec.samplesWhere = at("samples");
         }
         if (obj.contains("mc_threshold")) {
@@ -574,7 +574,8 @@ private:
             spec.mcThreshold = v.get<double>();
         }
         if (obj.contains("mc_max_depth")) {
-            spec.mcMaxDepth = readInt(obj["mc_max_depth"], at("mc_max_depth"), 0, 24);
+            spec.mcMaxDepth = readInt(obj["mc_max_depth"], at("mc_max_depth"), kMcMaxDepthRange.lo,
+                                       kMcMaxDepthRange.hi);
         }
         if (obj.contains("seed")) {
             const Json& v = obj["seed"];

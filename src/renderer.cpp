@@ -653,9 +653,9 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     checkRange("--width", settingsIn.width, 0, 65536);
     checkRange("--height", settingsIn.height, 0, 65536);
     checkRange("--threads", settingsIn.threads, -1, 4096);
-    checkRange("--aci-grid", settingsIn.aci.grid, 1, 32);
-    checkRange("--aci-steps", settingsIn.aci.steps, 1, 12);
-    checkRange("--max-span", settingsIn.maxSpan, 1, 1 << 20);
+    checkRange("--aci-grid", settingsIn.aci.grid, kAciGridRange.lo, kAciGridRange.hi);
+    checkRange("--aci-steps", settingsIn.aci.steps, kAciStepsRange.lo, kAciStepsRange.hi);
+    checkRange("--max-span", settingsIn.maxSpan, kMaxSpanRange.lo, kMaxSpanRange.hi);
     checkRange("--max-grid-factor", settingsIn.maxGridFactor, 1, 16);
     checkRange("--samples", settingsIn.mc.samples, 0, 1 << 20);
     if (!(settingsIn.mc.threshold > 0.0) || !std::isfinite(settingsIn.mc.threshold)) {
@@ -663,8 +663,9 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                          "must be a finite number > 0, got " +
                              std::to_string(settingsIn.mc.threshold));
     }
-    checkRange("--mc-max-depth", settingsIn.mc.maxDepth, 0, 24);
-    checkRange("--mc-initial-depth", settingsIn.mc.initialDepth, 0, 8);
+    checkRange("--mc-max-depth", settingsIn.mc.maxDepth, kMcMaxDepthRange.lo, kMcMaxDepthRange.hi);
+    checkRange("--mc-initial-depth", settingsIn.mc.initialDepth, kMcInitialDepthRange.lo,
+               kMcInitialDepthRange.hi);
     if (settingsIn.method == Method::McSolidAngle || settingsIn.method == Method::McRatio) {
         // The spherical-rectangle parametrization needs a rectangle, not a parallelogram.
         for (size_t i = 0; i < scene.lights.size(); ++i) {

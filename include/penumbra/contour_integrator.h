@@ -33,6 +33,9 @@ namespace penumbra {
 /// reduced by taking fewer dichotomy steps. At the limit the lattice takes 4097^2 x 8 bytes.
 constexpr int kMaxLatticeUnits = 4096;
 
+constexpr IntRange kAciGridRange{1, 32};   ///< AciSettings::grid (--aci-grid, aci_grid)
+constexpr IntRange kAciStepsRange{1, 12};  ///< AciSettings::steps (--aci-steps, aci_steps)
+
 struct AciSettings {
     int grid = 2;         ///< p = q: squares per light edge at the first level (paper: 2)
     int steps = 5;        ///< dichotomy steps n along a crossed side (paper: 5)

@@ -20,6 +20,15 @@ namespace penumbra {
 class ContourIntegrator;
 struct McSettings;
 
+/// A setting's accepted values, inclusive. Each setting has one range, the same for the command
+/// line, batch manifests and the library (render() checks them too): kAciGridRange and
+/// kAciStepsRange (contour_integrator.h), kMcSamplesRange, kMcMaxDepthRange and
+/// kMcInitialDepthRange (monte_carlo.h), kMaxSpanRange (renderer.h).
+struct IntRange {
+    int lo, hi;
+    bool holds(long v) const { return v >= lo && v <= hi; }
+};
+
 /// The estimators: "aci" (the section 5 renderer's pipeline; a plain ACI evaluation in
 /// probe), "aci-pixel" (ACI at every pixel), and the Monte Carlo methods.
 enum class Method { Aci, AciPixel, Reference, McAdaptive, McSolidAngle, McRatio };

@@ -47,6 +47,10 @@
 
 namespace penumbra {
 
+constexpr IntRange kMcSamplesRange{1, 1 << 20};  ///< McSettings::samples (--samples, samples)
+constexpr IntRange kMcMaxDepthRange{0, 24};      ///< McSettings::maxDepth (--mc-max-depth)
+constexpr IntRange kMcInitialDepthRange{0, 8};   ///< McSettings::initialDepth
+
 struct McSettings {
     /// Shadow rays per evaluation (fewer when part of the light is below the horizon). For
     /// monteCarloAdaptive, the most rays one evaluation may spend (a cap; the threshold decides).

@@ -43,6 +43,8 @@
 namespace penumbra {
 
 
+constexpr IntRange kMaxSpanRange{1, 4096};  ///< RenderSettings::maxSpan (--max-span, max_span)
+
 struct RenderSettings {
     Method method = Method::Aci;
     int width = 0;    ///< 0: the camera's width

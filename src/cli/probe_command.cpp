@@ -81,6 +81,19 @@ int runProbe(const ProbeOptions& opt) {
                          "mc-ratio, got '" + opt.method + "'");
     if (opt.samplesGiven && !isMonteCarlo(method))
         throw InputError("", "--samples", "only applies to the Monte Carlo methods");
+    // The same ranges as render and batch manifests (contour_integrator.h, monte_carlo.h).
+    auto requireRange = [](const std::string& flag, int value, IntRange r) {
+        if (!r.holds(value)) {
+            throw InputError("", flag,
+                             "must be in [" + std::to_string(r.lo) + ", " + std::to_string(r.hi) +
+                                 "], got " + std::to_string(value));
+        }
+    };
+    requireRange("--aci-grid", opt.grid, kAciGridRange);
+    requireRange("--aci-steps", opt.steps, kAciStepsRange);
+    if (opt.samplesGiven) requireRange("--samples", opt.samples, kMcSamplesRange);
+    requireRange("--mc-max-depth", opt.mcMaxDepth, kMcMaxDepthRange);
+    requireRange("--mc-initial-depth", opt.mcInitialDepth, kMcInitialDepthRange);
     const AciMode aciMode = parseAciMode(opt.aciMode, "--aci-mode");
     if (!(opt.mcThreshold > 0.0) || !std::isfinite(opt.mcThreshold))
         throw InputError("", "--mc-threshold", "must be a finite number > 0");
@@ -198,10 +211,10 @@ Runner addProbeCommand(CLI::App& app) {
                   "Append a column error_bound: the estimator's bound on |F - F_exact| (the "
                   "default tangent mode's certified coverage; nan for the paper and arcs modes "
                   "and the Monte Carlo methods)");
-    sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-64)")
+    sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-32)")
         ->check(CLI::Range(1, 64))
         ->capture_default_str();
-    sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (0-12)")
+    sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (1-12)")
         ->check(CLI::Range(0, 12))
         ->capture_default_str();
     sub->add_option("--aci-mode", opt->aciMode,

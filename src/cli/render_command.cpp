@@ -170,23 +170,24 @@ int runRender(const RenderOptions& o) {
     if (o.given("--width") && o.given("--height")) {
         checkRenderMemory(o.width, o.height, "", "--width/--height");  // before loading
     }
-    requireRange("--aci-grid", o.aciGrid, 1, 32);
-    requireRange("--aci-steps", o.aciSteps, 1, 12);
+    requireRange("--aci-grid", o.aciGrid, kAciGridRange.lo, kAciGridRange.hi);
+    requireRange("--aci-steps", o.aciSteps, kAciStepsRange.lo, kAciStepsRange.hi);
     const AciMode aciMode = parseAciMode(o.aciMode, "--aci-mode");
-    requireRange("--max-span", o.maxSpan, 1, 4096);
+    requireRange("--max-span", o.maxSpan, kMaxSpanRange.lo, kMaxSpanRange.hi);
     if (o.given("--samples")) {
         if (!isMonteCarlo(settings.method)) {
             throw InputError("", "--samples",
                              "only applies to the Monte Carlo methods (reference, mc-adaptive, "
                              "mc-solid-angle, mc-ratio)");
         }
-        requireRange("--samples", o.samples, 1, 1 << 20);
+        requireRange("--samples", o.samples, kMcSamplesRange.lo, kMcSamplesRange.hi);
     }
     if (!(o.mcThreshold > 0.0) || !std::isfinite(o.mcThreshold)) {
         throw InputError("", "--mc-threshold", "must be a finite number > 0");
     }
-    requireRange("--mc-max-depth", o.mcMaxDepth, 0, 24);
-    requireRange("--mc-initial-depth", o.mcInitialDepth, 0, 8);
+    requireRange("--mc-max-depth", o.mcMaxDepth, kMcMaxDepthRange.lo, kMcMaxDepthRange.hi);
+    requireRange("--mc-initial-depth", o.mcInitialDepth, kMcInitialDepthRange.lo,
+                 kMcInitialDepthRange.hi);
     if ((long(o.aciGrid) << (o.aciSteps + 1)) > kMaxLatticeUnits) {
         throw InputError("", "--aci-grid/--aci-steps",
                          "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
