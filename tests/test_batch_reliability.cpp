@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "support/cli.h"
+#include "support/scenes.h"
 #include "penumbra/batch.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
@@ -38,13 +39,7 @@ using namespace penumbra;
 
 namespace {
 
-const char* kScene = R"({
-  "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "width": 24, "height": 24},
-  "lights": [{"name": "key", "corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],
-              "radiance": [4, 4, 4]}],
-  "obstacles": [{"type": "sphere", "center": [0, 0, 1.2], "radius": 0.5, "analytic": true}],
-  "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}]
-})";
+const char* const kScene = test::kSphereScene;
 
 // The same view over a mesh obstacle read from `cube.obj`: a scene that reads another file.
 const char* kMeshScene = R"({
