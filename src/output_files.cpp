@@ -112,15 +112,7 @@ void writeTextFile(const std::string& file, const std::string& text, const std::
 
 void writeTextFileAtomically(const std::string& path, const std::string& text) {
     const std::string tmp = temporaryPathFor(path);
-    {
-        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-        if (out) out << text;
-        if (!out || !out.flush()) {
-            const int err = errno;
-            std::remove(tmp.c_str());
-            throw std::runtime_error("cannot write '" + path + "': " + std::strerror(err));
-        }
-    }
+    writeTextFile(tmp, text, path);
     if (std::rename(tmp.c_str(), path.c_str()) != 0) {
         const int err = errno;
         std::remove(tmp.c_str());
