@@ -1215,6 +1215,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
             const size_t inputsBefore = ctx.inputs.size();
             plans.push_back(parseObstacle(obstacles.element(i), i, scene.levelSet));
             ObstaclePlan& p = plans.back();
+            if (!ctx.cache) continue;  // the key (and hashing the files it reads) serves only a cache
             std::ostringstream key;
             key << std::setprecision(17) << ctx.baseDir << '|' << obstacles.element(i).json().dump()
                 << '|' << p.voxelSize << '|' << p.halfWidth << '|' << i;
@@ -1238,7 +1239,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
                 unbounded = true;
             }
         });
-        if (unbounded) {
+        if (unbounded && ctx.cache) {
             std::ostringstream key;
             key << std::setprecision(17) << "|bounds " << bounds.lo.x << ' ' << bounds.lo.y << ' '
                 << bounds.lo.z << ' ' << bounds.hi.x << ' ' << bounds.hi.y << ' ' << bounds.hi.z;
