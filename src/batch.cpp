@@ -443,7 +443,7 @@ public:
 
     BatchManifest read(const Json& root) {
         if (!root.is_object()) fail("", "a manifest is a JSON object with \"jobs\" or \"sweep\"");
-        checkKeys(root, "", {"jobs", "sweep", "defaults"});
+        checkKeys(root, "", {"jobs", "sweep", "defaults", "cache"});
         JobSpec defaults;
         if (root.contains("defaults")) {
             const Json& d = root["defaults"];
@@ -456,6 +456,7 @@ public:
         }
         BatchManifest manifest;
         manifest.file = mFile;
+        if (root.contains("cache")) manifest.cache = resolvePath(mBaseDir, readString(root["cache"], "/cache"));
         if (root.contains("jobs")) {
             const Json& jobs = root["jobs"];
             if (!jobs.is_array()) fail("/jobs", "must be an array of jobs");
@@ -771,20 +772,6 @@ private:
 // ---------------------------------------------------------------------------------------------
 // Hashing
 
-uint64_t fnv1a(const std::string& s, uint64_t h = 1469598103934665603ull) {
-    for (unsigned char c : s) {
-        h ^= c;
-        h *= 1099511628211ull;
-    }
-    return h;
-}
-
-std::string hex16(uint64_t v) {
-    char buf[17];
-    std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
-    return buf;
-}
-
 std::string formatDouble(double v) {
     char buf[32];
     std::snprintf(buf, sizeof buf, "%.17g", v);
@@ -799,6 +786,39 @@ std::string formatSeconds(double v) {
 
 // ---------------------------------------------------------------------------------------------
 // Records and clean-up
+
+std::string hostName() {
+    char buf[256] = {};
+    if (::gethostname(buf, sizeof(buf) - 1) != 0 || buf[0] == '\0') return "unknown host";
+    return buf;
+}
+
+/// Records a failed job next to its output (failureRecordPath) for `batch --status`, best
+/// effort: a job whose output directory cannot be written is reported missing instead.
+void writeFailureRecord(const BatchJob& job, const std::string& hash, const std::string& error,
+                        double seconds) {
+    nlohmann::ordered_json j;
+    j["format"] = "penumbra-batch-failure";
+    j["version"] = 1;
+    j["hash"] = hash;
+    j["name"] = job.name;
+    j["origin"] = job.origin;
+    j["error"] = error;
+    j["host"] = hostName();
+    j["pid"] = static_cast<long>(::getpid());
+    j["seconds"] = seconds;
+    try {
+        std::error_code ec;
+        fs::create_directories(parentDir(job.output), ec);
+        writeTextFileAtomically(failureRecordPath(job.output), j.dump(2) + "\n");
+    } catch (const std::exception&) {
+    }
+}
+
+void removeFailureRecord(const BatchJob& job) {
+    std::error_code ec;
+    fs::remove(failureRecordPath(job.output), ec);
+}
 
 /// Removes the temporaries of dead processes on this host (output_files.h) in the directories
 /// the selected jobs (and the summary) write into; a live run's temporaries are left alone, so a
@@ -856,7 +876,8 @@ std::string sidecarJson(const BatchJob& job, const std::string& hash, int width,
 /// Whether `job`'s output is finished with the settings of `hash`: the image exists, its sidecar
 /// records `hash`, the image's size and content hash match the sidecar's, and the image's own
 /// header carries `hash`. Anything missing, unreadable or different: false (render it again).
-bool outputVerified(const BatchJob& job, const std::string& hash, uint64_t& shadowRays) {
+bool outputVerified(const BatchJob& job, const std::string& hash, uint64_t& shadowRays,
+                    double* seconds = nullptr) {
     std::error_code ec;
     if (!fs::is_regular_file(job.output, ec)) return false;
     Json record;
@@ -887,6 +908,8 @@ bool outputVerified(const BatchJob& job, const std::string& hash, uint64_t& shad
     }
     const auto rays = record.find("shadow_rays");
     shadowRays = rays != record.end() && rays->is_number_unsigned() ? rays->get<uint64_t>() : 0;
+    const auto secs = record.find("seconds");
+    if (seconds) *seconds = secs != record.end() && secs->is_number() ? secs->get<double>() : 0.0;
     return true;
 }
 
@@ -907,9 +930,10 @@ struct RunState {
     /// Level sets shared by the jobs of one scene file (by real path), with how many of those
     /// jobs have not ended: the last one to end frees them.
     struct SharedScene {
-        std::shared_ptr<LevelSetCache> cache = std::make_shared<LevelSetCache>();
+        std::shared_ptr<LevelSetCache> cache;
         size_t jobsLeft = 0;
     };
+    std::mutex warnMutex;  // one warning at a time
     std::map<std::string, SharedScene> scenes;  // guarded by `mutex`
 
     std::shared_ptr<LevelSetCache> cacheFor(const BatchJob& job) {
@@ -943,9 +967,10 @@ void runJob(RunState& run, size_t slot) {
     JobResult result;
     result.job = run.selected[slot];
     const auto start = std::chrono::steady_clock::now();
+    std::string hash;  // "" until the scene could be read
     try {
         const std::string text = resolveSceneText(job);
-        const std::string hash = jobHash(job, text);
+        hash = jobHash(job, text);
         if (run.options.resume && outputVerified(job, hash, result.shadowRays)) {
             result.status = JobStatus::Skipped;
         } else {
@@ -953,6 +978,7 @@ void runJob(RunState& run, size_t slot) {
             const Scene scene = parseScene(text, job.scene, parentDir(job.scene), cache.get());
             result.levelSetsBuilt = scene.build.levelSetsBuilt;
             result.levelSetsShared = scene.build.levelSetsShared;
+            result.levelSetsFromCache = scene.build.levelSetsFromCache;
             // The files the scene read were checked from its text before the run
             // (checkBatchFiles); this also catches a reference that check could not see.
             for (const auto& [path, pointer] : scene.inputFiles) {
@@ -970,6 +996,8 @@ void runJob(RunState& run, size_t slot) {
                 run.fraction[slot] = double(done) / double(std::max(1, total));
                 run.report();
             });
+            // Companions the render built go to the cache directory for later runs and shards.
+            if (cache) cache->persist();
             const RenderStats& st = r.stats;
             // Staged under unique temporary names and renamed in the order registered:
             // statistics, sidecar, image. An image on disk therefore implies its statistics
@@ -1023,6 +1051,11 @@ void runJob(RunState& run, size_t slot) {
     }
     // Keep the error on one line: summaries and logs are read line by line.
     std::replace(result.error.begin(), result.error.end(), '\n', ' ');
+    if (result.status == JobStatus::Failed) {
+        writeFailureRecord(job, hash, result.error, result.seconds);
+    } else {
+        removeFailureRecord(job);
+    }
 
     std::lock_guard<std::mutex> lock(run.mutex);
     run.jobEnded(job);
@@ -1141,36 +1174,10 @@ void checkBatchFiles(const BatchManifest& manifest, const std::string& summary,
     registerBatchFiles(manifest, summary, summaryFlag);
 }
 
-FileDigest digestFile(const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw std::runtime_error("cannot read '" + path + "': " + std::strerror(errno));
-    FileDigest d;
-    uint64_t h = 1469598103934665603ull;  // FNV-1a 64, as jobHash
-    std::vector<char> buffer(1 << 16);
-    while (in) {
-        in.read(buffer.data(), std::streamsize(buffer.size()));
-        const std::streamsize n = in.gcount();
-        for (std::streamsize i = 0; i < n; ++i) {
-            h ^= static_cast<unsigned char>(buffer[size_t(i)]);
-            h *= 1099511628211ull;
-        }
-        d.bytes += uint64_t(n);
-    }
-    if (in.bad()) throw std::runtime_error("cannot read '" + path + "'");
-    d.hash = hex16(h);
-    return d;
-}
-
 // ---------------------------------------------------------------------------------------------
 // Lock
 
 namespace {
-
-std::string hostName() {
-    char buf[256] = {};
-    if (::gethostname(buf, sizeof(buf) - 1) != 0 || buf[0] == '\0') return "unknown host";
-    return buf;
-}
 
 enum class LockOutcome { Held, Busy, Impossible };
 
@@ -1520,10 +1527,57 @@ std::string jobHash(const BatchJob& job, const std::string& resolvedSceneText) {
         << " " << formatDouble(s.mc.rayOffset) << " " << s.mc.seed << "\n"
         << "scene " << resolvedSceneText.size() << "\n"
         << resolvedSceneText;
-    return hex16(fnv1a(key.str()));
+    return hex16(fnv1a64(key.str()));
 }
 
 std::string sidecarPath(const std::string& output) { return output + ".job.json"; }
+
+std::string failureRecordPath(const std::string& output) { return output + ".failed.json"; }
+
+const char* jobStateName(JobState state) {
+    switch (state) {
+        case JobState::Done: return "done";
+        case JobState::Failed: return "failed";
+        case JobState::Missing: return "missing";
+    }
+    return "?";
+}
+
+std::vector<JobRecord> readJobRecords(const BatchManifest& manifest,
+                                      const std::vector<size_t>& selected) {
+    std::vector<JobRecord> out;
+    for (size_t i : selected) {
+        const BatchJob& job = manifest.jobs.at(i);
+        JobRecord r;
+        r.job = i;
+        std::string hash;
+        try {
+            hash = jobHash(job, resolveSceneText(job));
+        } catch (const std::exception&) {
+            // The scene cannot be read now: only a failure record can say more.
+        }
+        if (!hash.empty() && outputVerified(job, hash, r.shadowRays, &r.seconds)) {
+            r.state = JobState::Done;
+            out.push_back(r);
+            continue;
+        }
+        try {
+            std::ifstream in(failureRecordPath(job.output), std::ios::binary);
+            const Json rec = in ? Json::parse(in) : Json();
+            // A failure under other settings (or of a scene since fixed) is not this job's.
+            if (rec.is_object() && rec.value("format", "") == "penumbra-batch-failure" &&
+                (hash.empty() || rec.value("hash", "") == hash)) {
+                r.state = JobState::Failed;
+                r.error = rec.value("error", "");
+                r.host = rec.value("host", "");
+                r.seconds = rec.value("seconds", 0.0);
+            }
+        } catch (const std::exception&) {
+        }
+        out.push_back(r);
+    }
+    return out;
+}
 
 const char* jobStatusName(JobStatus status) {
     switch (status) {
@@ -1550,7 +1604,19 @@ std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector
     run.files = registerBatchFiles(manifest, options.summary, "--summary");
     run.results.resize(selected.size());
     run.fraction.assign(selected.size(), 0.0);
-    for (size_t index : selected) ++run.scenes[resolvedPath(manifest.jobs[index].scene)].jobsLeft;
+    const std::string cacheDir = !options.cacheDir.empty() ? options.cacheDir : manifest.cache;
+    LevelSetCache::Warn warn;
+    if (callbacks.warning) {
+        warn = [&run](const std::string& text) {
+            std::lock_guard<std::mutex> lock(run.warnMutex);
+            run.callbacks.warning(text);
+        };
+    }
+    for (size_t index : selected) {
+        RunState::SharedScene& shared = run.scenes[resolvedPath(manifest.jobs[index].scene)];
+        if (!shared.cache) shared.cache = std::make_shared<LevelSetCache>(cacheDir, warn);
+        ++shared.jobsLeft;
+    }
     run.info.total = selected.size();
     removeStaleBatchTemporaries(manifest, selected, options.summary);
 
@@ -1629,6 +1695,7 @@ void writeBatchSummary(const std::string& path, const BatchManifest& manifest, c
                             {"shadow_rays", r.shadowRays},
                             {"level_sets_built", r.levelSetsBuilt},
                             {"level_sets_shared", r.levelSetsShared},
+                            {"level_sets_from_cache", r.levelSetsFromCache},
                             {"output", job.output},
                             {"scene", job.scene}});
         }

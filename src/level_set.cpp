@@ -15,6 +15,7 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <vector>
 #include <cstdio>
 #include <filesystem>
@@ -46,9 +47,19 @@ const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
             xform->preScale(factor);
             mFar->grid = openvdb::tools::levelSetRebuild(*mGrid, 0.0f, band, band, xform.get());
         });
+        mFar->built.store(true, std::memory_order_release);
     });
     return *mFar->grid;
 }
+
+void LevelSet::adoptFarField(openvdb::FloatGrid::ConstPtr grid) const {
+    std::call_once(mFar->once, [&] {
+        mFar->grid = std::move(grid);
+        mFar->built.store(true, std::memory_order_release);
+    });
+}
+
+bool hasFarField(const LevelSet& ls) { return ls.farFieldIfBuilt() != nullptr; }
 
 LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
     mVoxelSize = mGrid->voxelSize()[0];
@@ -418,6 +429,142 @@ void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& gri
         std::remove(tmp.c_str());
         throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Level-set cache files
+
+namespace {
+
+constexpr const char* kCacheFormat = "penumbra-level-set-cache";
+constexpr int kCacheVersion = 1;
+
+// Grids in a cache file are named by position ("ls_0", "ls_0_far", ...); what they were called
+// travels in their metadata.
+std::string cacheGridName(size_t i, bool far) {
+    return "ls_" + std::to_string(i) + (far ? "_far" : "");
+}
+
+openvdb::GridBase::ConstPtr cacheGrid(const openvdb::FloatGrid& grid, const std::string& name,
+                                      const std::string& label) {
+    openvdb::MetaMap meta(grid);
+    meta.insertMeta("penumbra_grid_name", openvdb::StringMetadata(grid.getName()));
+    meta.insertMeta("penumbra_label", openvdb::StringMetadata(label));
+    meta.insertMeta(openvdb::GridBase::META_GRID_NAME, openvdb::StringMetadata(name));
+    return grid.copyGridReplacingMetadata(meta);
+}
+
+std::string stringMeta(const openvdb::MetaMap& meta, const std::string& name) {
+    const auto m = meta.getMetadata<openvdb::StringMetadata>(name);
+    return m ? m->value() : std::string();
+}
+
+}  // namespace
+
+void writeCacheFile(const std::string& file, const std::string& key, const CacheFileEntry& entry) {
+    ensureOpenVdbInitialized();
+    if (entry.labels.size() != entry.levelSets.size()) {
+        throw std::invalid_argument("writeCacheFile: one label per level set");
+    }
+    openvdb::GridCPtrVec grids;
+    for (size_t i = 0; i < entry.levelSets.size(); ++i) {
+        const LevelSet& ls = *entry.levelSets[i];
+        grids.push_back(cacheGrid(ls.grid(), cacheGridName(i, false), entry.labels[i]));
+        if (const openvdb::FloatGrid::ConstPtr far = ls.farFieldIfBuilt()) {
+            grids.push_back(cacheGrid(*far, cacheGridName(i, true), entry.labels[i]));
+        }
+    }
+    openvdb::MetaMap fileMeta;
+    fileMeta.insertMeta("penumbra_format", openvdb::StringMetadata(kCacheFormat));
+    fileMeta.insertMeta("penumbra_version", openvdb::Int32Metadata(kCacheVersion));
+    fileMeta.insertMeta("penumbra_key", openvdb::StringMetadata(key));
+    fileMeta.insertMeta("penumbra_far_factor", openvdb::DoubleMetadata(kFarFieldFactor));
+    fileMeta.insertMeta("penumbra_far_band", openvdb::FloatMetadata(kFarFieldBand));
+    const std::string tmp = temporaryPathFor(file);
+    try {
+        openvdb::io::File vdb(tmp);
+        vdb.write(grids, fileMeta);
+        vdb.close();
+    } catch (const std::exception& e) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot write the cache file: " + e.what());
+    }
+    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
+    }
+}
+
+CacheFileEntry readCacheFile(const std::string& file, const std::string& key) {
+    ensureOpenVdbInitialized();
+    openvdb::GridPtrVecPtr grids;
+    openvdb::MetaMap::Ptr fileMeta;
+    try {
+        checkVdbFile(file, "");  // bounded header walk: a truncated file is refused here
+        openvdb::io::File vdb(file);
+        vdb.open(/*delayLoad=*/false);
+        fileMeta = vdb.getMetadata();
+        grids = vdb.getGrids();
+        vdb.close();
+    } catch (const InputError& e) {
+        throw std::runtime_error(e.message());
+    } catch (const std::bad_alloc&) {
+        throw std::runtime_error("corrupt (out of memory reading it)");
+    } catch (const std::exception& e) {
+        throw std::runtime_error(e.what());
+    }
+    if (!fileMeta || stringMeta(*fileMeta, "penumbra_format") != kCacheFormat) {
+        throw std::runtime_error("not a penumbra level-set cache file");
+    }
+    const auto version = fileMeta->getMetadata<openvdb::Int32Metadata>("penumbra_version");
+    const auto factor = fileMeta->getMetadata<openvdb::DoubleMetadata>("penumbra_far_factor");
+    const auto band = fileMeta->getMetadata<openvdb::FloatMetadata>("penumbra_far_band");
+    if (!version || version->value() != kCacheVersion || !factor ||
+        factor->value() != kFarFieldFactor || !band || band->value() != kFarFieldBand) {
+        throw std::runtime_error("written by another version of penumbra");
+    }
+    if (stringMeta(*fileMeta, "penumbra_key") != key) {
+        throw std::runtime_error("made for other obstacles (its key differs)");
+    }
+    std::map<std::string, openvdb::FloatGrid::Ptr> byName;
+    for (const openvdb::GridBase::Ptr& g : *grids) {
+        auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+        if (!f || f->getGridClass() != openvdb::GRID_LEVEL_SET || !f->hasUniformVoxels() ||
+            !f->transform().isLinear()) {
+            throw std::runtime_error("grid '" + g->getName() + "' is not a float level set");
+        }
+        byName[f->getName()] = f;
+    }
+    CacheFileEntry entry;
+    for (size_t i = 0;; ++i) {
+        const auto it = byName.find(cacheGridName(i, false));
+        if (it == byName.end()) break;
+        openvdb::MetaMap meta(*it->second);
+        meta.insertMeta(openvdb::GridBase::META_GRID_NAME,
+                        openvdb::StringMetadata(stringMeta(meta, "penumbra_grid_name")));
+        const std::string label = stringMeta(meta, "penumbra_label");
+        meta.removeMeta("penumbra_grid_name");
+        meta.removeMeta("penumbra_label");
+        auto grid = openvdb::gridConstPtrCast<openvdb::FloatGrid>(
+            it->second->copyGridReplacingMetadata(meta));
+        auto ls = std::make_shared<const LevelSet>(grid);
+        const auto far = byName.find(cacheGridName(i, true));
+        if (far != byName.end()) {
+            openvdb::MetaMap farMeta(*far->second);
+            farMeta.removeMeta("penumbra_grid_name");
+            farMeta.removeMeta("penumbra_label");
+            ls->adoptFarField(openvdb::gridConstPtrCast<openvdb::FloatGrid>(
+                far->second->copyGridReplacingMetadata(farMeta)));
+            ++entry.farFields;
+        }
+        entry.levelSets.push_back(std::move(ls));
+        entry.labels.push_back(label);
+    }
+    if (entry.levelSets.empty() || entry.levelSets.size() * 2 < byName.size() ||
+        entry.levelSets.size() + size_t(entry.farFields) != byName.size()) {
+        throw std::runtime_error("its grids are not those of a cache entry");
+    }
+    return entry;
 }
 
 LevelSetPtr renamedLevelSet(const LevelSetPtr& levelSet, const std::string& name) {

@@ -9,6 +9,7 @@
 
 #include <openvdb/openvdb.h>
 
+#include <atomic>
 #include <memory>
 #include <mutex>
 
@@ -34,10 +35,18 @@ class LevelSet {
     /// and batch job over it shares one.
     const openvdb::FloatGrid& farField(double factor, float band) const;
 
+    /// The companion, if it has been built or adopted (null otherwise).
+    openvdb::FloatGrid::ConstPtr farFieldIfBuilt() const {
+        return mFar->built.load(std::memory_order_acquire) ? mFar->grid : nullptr;
+    }
+    /// Takes a companion built elsewhere (a cache file) unless one exists already.
+    void adoptFarField(openvdb::FloatGrid::ConstPtr grid) const;
+
   private:
     struct FarCache {
         std::once_flag once;
-        openvdb::FloatGrid::Ptr grid;
+        openvdb::FloatGrid::ConstPtr grid;
+        std::atomic<bool> built{false};
     };
     std::shared_ptr<FarCache> mFar = std::make_shared<FarCache>();
     openvdb::FloatGrid::ConstPtr mGrid;

@@ -21,8 +21,8 @@ namespace {
 
 using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
 
-constexpr double kFarVoxelFactor = 4.0;  // far-field companion voxels, in fine voxels
-constexpr float kFarBand = 16.0f;        // companion exterior band, in companion voxels
+constexpr double kFarVoxelFactor = kFarFieldFactor;  // companion voxels, in fine voxels
+constexpr float kFarBand = kFarFieldBand;            // companion band, in companion voxels
 using VdbRay = openvdb::math::Ray<double>;
 
 /// Per-thread state for one level-set obstacle. Copying gives a new accessor (registered with

@@ -12,8 +12,11 @@
 #include <fstream>
 #include <stdexcept>
 #include <system_error>
+#include <vector>
+#include <cstdio>
 
 #include "penumbra/error.h"
+#include "penumbra/hash.h"
 
 namespace penumbra {
 
@@ -209,6 +212,33 @@ void OutputSet::discard() {
         std::remove(e.temporary.c_str());
         e.temporary.clear();
     }
+}
+
+}  // namespace penumbra
+
+namespace penumbra {
+
+std::string hex16(uint64_t v) {
+    char buf[17];
+    std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
+    return buf;
+}
+
+FileDigest digestFile(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw std::runtime_error("cannot read '" + path + "': " + std::strerror(errno));
+    FileDigest d;
+    uint64_t h = kFnvOffset;
+    std::vector<char> buffer(1 << 16);
+    while (in) {
+        in.read(buffer.data(), std::streamsize(buffer.size()));
+        const std::streamsize n = in.gcount();
+        h = fnv1a64(std::string_view(buffer.data(), size_t(n)), h);
+        d.bytes += uint64_t(n);
+    }
+    if (in.bad()) throw std::runtime_error("cannot read '" + path + "'");
+    d.hash = hex16(h);
+    return d;
 }
 
 }  // namespace penumbra

@@ -27,6 +27,7 @@
 #include <variant>
 
 #include "penumbra/error.h"
+#include "penumbra/hash.h"
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"
 #include "penumbra/shape.h"
@@ -865,22 +866,14 @@ void checkIndexRange(const Node& node, const Box3& bounds, double voxel) {
     }
 }
 
-/// FNV-1a 64 over a file's bytes (its content, for LevelSetCache keys).
+/// A file's content hash, for LevelSetCache keys ("unreadable" when it cannot be read: the
+/// load that follows reports why).
 std::string contentDigest(const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    uint64_t h = 1469598103934665603ull;
-    char buf[1 << 16];
-    while (in.read(buf, sizeof buf) || in.gcount() > 0) {
-        const std::streamsize n = in.gcount();
-        for (std::streamsize i = 0; i < n; ++i) {
-            h ^= static_cast<unsigned char>(buf[i]);
-            h *= 1099511628211ull;
-        }
-        if (!in) break;
+    try {
+        return digestFile(path).hash;
+    } catch (const std::exception&) {
+        return "unreadable";
     }
-    char text[17];
-    std::snprintf(text, sizeof text, "%016llx", static_cast<unsigned long long>(h));
-    return text;
 }
 
 ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSettings& global) {
@@ -1078,20 +1071,25 @@ void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obs
     const bool cacheable = cache && !std::holds_alternative<AnalyticSphere>(plan.shape) &&
                            !std::holds_alternative<AnalyticBox>(plan.shape);
     if (cacheable) {
-        const std::vector<Obstacle> shared = cache->find(plan.cacheKey);
-        if (!shared.empty()) {
-            // Built by an earlier load of the same obstacle: the same level sets (and their
-            // far-field companions, built once on first use), with this scene's albedo.
-            for (const Obstacle& o : shared) {
+        const LevelSetCache::Found shared = cache->find(plan.cacheKey);
+        if (!shared.obstacles.empty()) {
+            // Built by an earlier load of the same obstacle (in this process, or stored in the
+            // cache's directory by another): the same level sets (and their far-field
+            // companions, built once on first use), with this scene's albedo.
+            for (const Obstacle& o : shared.obstacles) {
                 Obstacle copy = o;
                 copy.albedo = plan.albedo;
+                copy.voxelSize = plan.voxelSize;
+                copy.halfWidth = plan.halfWidth;
                 out.push_back(copy);
                 ObstacleBuild r = reportFor(copy.name, plan.type, std::get<LevelSetPtr>(copy.shape));
                 r.shared = true;
-                r.note = "shared with an earlier load";
+                r.note = shared.file.empty() ? "shared with an earlier load"
+                                             : "read from the cache file " + shared.file;
+                r.seconds = secondsSince(start);
                 report.obstacles.push_back(r);
             }
-            ++report.levelSetsShared;
+            ++(shared.file.empty() ? report.levelSetsShared : report.levelSetsFromCache);
             return;
         }
     }
@@ -1444,18 +1442,91 @@ std::string BuildReport::toJson() const {
     }
     j["level_sets_built"] = levelSetsBuilt;
     j["level_sets_shared"] = levelSetsShared;
+    j["level_sets_from_cache"] = levelSetsFromCache;
     return j.dump();
 }
 
-std::vector<Obstacle> LevelSetCache::find(const std::string& key) const {
+LevelSetCache::LevelSetCache(std::string directory, Warn warn)
+    : mDirectory(std::move(directory)), mWarn(std::move(warn)) {
+    if (mDirectory.empty()) return;
+    std::error_code ec;
+    std::filesystem::create_directories(mDirectory, ec);
+    if (!std::filesystem::is_directory(mDirectory, ec)) {
+        throw InputError(mDirectory, "", "cannot use as a level-set cache directory: " +
+                                             (ec ? ec.message() : std::string("not a directory")));
+    }
+}
+
+std::string LevelSetCache::fileFor(const std::string& key) const {
+    return (std::filesystem::path(mDirectory) / ("levelset-" + hex16(fnv1a64(key)) + ".vdb")).string();
+}
+
+LevelSetCache::Found LevelSetCache::find(const std::string& key) {
+    {
+        std::lock_guard<std::mutex> lock(mMutex);
+        const auto it = mEntries.find(key);
+        if (it != mEntries.end()) return {it->second.obstacles, ""};
+    }
+    if (mDirectory.empty()) return {};
+    const std::string file = fileFor(key);
+    std::error_code ec;
+    if (!std::filesystem::exists(file, ec)) return {};
+    CacheFileEntry read;
+    try {
+        read = readCacheFile(file, key);
+    } catch (const std::exception& e) {
+        if (mWarn) mWarn("ignoring level-set cache file '" + file + "': " + e.what() + "; rebuilding it");
+        return {};
+    }
+    Entry entry;
+    for (size_t i = 0; i < read.levelSets.size(); ++i) {
+        Obstacle o;
+        o.name = read.labels[i];
+        o.shape = read.levelSets[i];
+        entry.obstacles.push_back(std::move(o));
+    }
+    entry.farFieldsWritten = read.farFields;
     std::lock_guard<std::mutex> lock(mMutex);
-    const auto it = mEntries.find(key);
-    return it == mEntries.end() ? std::vector<Obstacle>{} : it->second;
+    const auto it = mEntries.emplace(key, std::move(entry)).first;  // a concurrent load: keep the first
+    return {it->second.obstacles, file};
+}
+
+void LevelSetCache::write(const std::string& key, Entry& entry) {
+    CacheFileEntry out;
+    for (const Obstacle& o : entry.obstacles) {
+        const auto* ls = std::get_if<LevelSetPtr>(&o.shape);
+        if (!ls || !*ls) return;  // only level sets are cached
+        out.levelSets.push_back(*ls);
+        out.labels.push_back(o.name);
+        out.farFields += hasFarField(**ls) ? 1 : 0;
+    }
+    try {
+        writeCacheFile(fileFor(key), key, out);
+        entry.farFieldsWritten = out.farFields;
+    } catch (const std::exception& e) {
+        entry.farFieldsWritten = int(out.levelSets.size());  // do not try again
+        if (mWarn) mWarn(std::string("cannot store a level set in the cache: ") + e.what());
+    }
 }
 
 void LevelSetCache::insert(const std::string& key, std::vector<Obstacle> obstacles) {
     std::lock_guard<std::mutex> lock(mMutex);
-    mEntries.emplace(key, std::move(obstacles));  // a concurrent build of the same key: keep the first
+    // A concurrent build of the same key: keep the first.
+    const auto [it, added] = mEntries.emplace(key, Entry{std::move(obstacles), -1});
+    if (added && !mDirectory.empty()) write(key, it->second);
+}
+
+void LevelSetCache::persist() {
+    if (mDirectory.empty()) return;
+    std::lock_guard<std::mutex> lock(mMutex);
+    for (auto& [key, entry] : mEntries) {
+        int built = 0;
+        for (const Obstacle& o : entry.obstacles) {
+            const auto* ls = std::get_if<LevelSetPtr>(&o.shape);
+            built += ls && *ls && hasFarField(**ls) ? 1 : 0;
+        }
+        if (built > entry.farFieldsWritten) write(key, entry);
+    }
 }
 
 size_t LevelSetCache::size() const {

@@ -35,6 +35,7 @@
 #include <utility>
 #include <vector>
 
+#include "penumbra/hash.h"
 #include "penumbra/renderer.h"
 
 namespace penumbra {
@@ -57,6 +58,8 @@ struct BatchJob {
 struct BatchManifest {
     std::string file;  ///< the manifest's path, for messages
     std::string path;  ///< the manifest file as read by loadManifest ("" when parsed from text)
+    /// The manifest's "cache": a level-set cache directory (LevelSetCache), resolved; "" none.
+    std::string cache;
     std::vector<BatchJob> jobs;
 };
 
@@ -137,14 +140,33 @@ std::string jobHash(const BatchJob& job, const std::string& resolvedSceneText);
 /// The sidecar record written next to an output: OUT + ".job.json".
 std::string sidecarPath(const std::string& output);
 
-/// The size and content hash of a file: what a sidecar records of its output and what resume
-/// compares (`output_bytes`, `output_hash`).
-struct FileDigest {
-    uint64_t bytes = 0;
-    std::string hash;  ///< 16 hex digits: FNV-1a 64 of the file's bytes (not cryptographic)
+/// The record a failed job leaves next to its output, OUT + ".failed.json" (its error, host and
+/// settings hash); removed when the job is later rendered or found done.
+std::string failureRecordPath(const std::string& output);
+
+/// What the files on disk say about a job, whichever run or shard made them (`batch --status`):
+/// done (its output verified as resume does), failed (a failure record for its current settings,
+/// or for a scene that still cannot be read) or missing (neither: not run yet, still running,
+/// killed, or its settings changed since).
+enum class JobState { Done, Failed, Missing };
+const char* jobStateName(JobState state);  ///< "done", "failed", "missing"
+
+struct JobRecord {
+    size_t job = 0;  ///< position in BatchManifest::jobs
+    JobState state = JobState::Missing;
+    std::string error;        ///< failed: the recorded one-line error
+    std::string host;         ///< failed: the host it failed on
+    double seconds = 0.0;     ///< done: the render's seconds (sidecar); failed: the attempt's
+    uint64_t shadowRays = 0;  ///< done: from the sidecar
 };
-/// Reads the whole file; throws std::runtime_error naming it when it cannot be read.
-FileDigest digestFile(const std::string& path);
+
+/// The records of the jobs at positions `selected`, in that order. Reads only (takes no lock):
+/// safe while shards run.
+std::vector<JobRecord> readJobRecords(const BatchManifest& manifest,
+                                      const std::vector<size_t>& selected);
+
+// digestFile() (hash.h) gives what a sidecar records of its output and what resume compares
+// (`output_bytes`, `output_hash`).
 
 // ---------------------------------------------------------------------------------------------
 // One run at a time
@@ -199,6 +221,7 @@ struct JobResult {
     /// Obstacles whose level sets this job built (or read), and those it took from an earlier
     /// job of the same scene (the batch shares them while jobs of that scene remain).
     int levelSetsBuilt = 0, levelSetsShared = 0;
+    int levelSetsFromCache = 0;  ///< obstacles whose level sets it read from the cache directory
 };
 
 struct BatchProgressInfo {
@@ -216,6 +239,9 @@ struct BatchOptions {
     /// batch's files before any job runs (checkBatchFiles), and its directory's stale
     /// temporaries removed. runBatch does not write it.
     std::string summary;
+    /// Level-set cache directory shared by runs and shards (`--cache`); "" takes the
+    /// manifest's "cache", if any.
+    std::string cacheDir;
 };
 
 struct BatchCallbacks {
@@ -223,6 +249,9 @@ struct BatchCallbacks {
     std::function<void(const BatchJob&, const JobResult&)> jobDone;
     /// After a job finishes and after rows are rendered; may be frequent, must be quick.
     std::function<void(const BatchProgressInfo&)> progress;
+    /// A one-line warning (an unusable level-set cache file, say); called from job threads,
+    /// one at a time.
+    std::function<void(const std::string&)> warning;
 };
 
 /// Runs the jobs at positions `selected` (e.g. from shardJobs) and returns one result per

@@ -71,6 +71,33 @@ struct VdbWriteOptions {
 void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& grids,
                     const VdbWriteOptions& options);
 
+/// The far-field companion every level set gets for shadow-ray clearances and certificates
+/// (occluder.cpp): voxels this many times the fine ones, and a band of this many of them.
+constexpr double kFarFieldFactor = 4.0;
+constexpr float kFarFieldBand = 16.0f;
+
+/// One entry of a level-set cache directory (LevelSetCache, scene.h): the level sets of one
+/// obstacle with their far-field companions when those were built, and the key they were built
+/// for. `labels` (one per level set) travel with them: the obstacles' names.
+struct CacheFileEntry {
+    std::vector<LevelSetPtr> levelSets;
+    std::vector<std::string> labels;
+    int farFields = 0;  ///< how many companions the file held (read) or got (written)
+};
+
+/// Writes an entry atomically (a temporary name in the same directory, then rename). The file
+/// holds `key` in its metadata; companions already built are written with their level set.
+/// Throws std::runtime_error when the file cannot be written.
+void writeCacheFile(const std::string& file, const std::string& key, const CacheFileEntry& entry);
+
+/// Reads an entry written by writeCacheFile for the same `key`, and hands each level set its
+/// stored companion. Throws std::runtime_error with the reason for a file that is corrupt,
+/// truncated, of another version or made for another key (a hash collision or a foreign file).
+CacheFileEntry readCacheFile(const std::string& file, const std::string& key);
+
+/// Whether the level set's far-field companion has been built (or read from a cache file).
+bool hasFarField(const LevelSet& ls);
+
 /// The same level set under another grid name; the voxels are shared.
 LevelSetPtr renamedLevelSet(const LevelSetPtr& levelSet, const std::string& name);
 

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -73,7 +74,8 @@ struct BuildReport {
     double estimatedBytes = 0.0;           ///< sum of the estimates
     double memoryLimitBytes = 0.0;         ///< the limit they were checked against
     int levelSetsBuilt = 0;   ///< obstacles whose level sets this load built or read
-    int levelSetsShared = 0;  ///< obstacles whose level sets came from a LevelSetCache
+    int levelSetsShared = 0;  ///< obstacles whose level sets an earlier load in this process built
+    int levelSetsFromCache = 0;  ///< obstacles whose level sets were read from a cache directory
 
     uint64_t activeVoxels() const;
     uint64_t bytes() const;
@@ -119,21 +121,52 @@ struct Scene {
     std::vector<LevelSetPtr> obstacleLevelSets() const;
 };
 
-/// Level sets shared between loads of the same obstacles in one process (the jobs of a batch
-/// that render one scene): keyed by the obstacle's JSON and position, the voxel size and band it
-/// resolves to, the content of every file it reads and the bounds of its unbounded half-spaces.
-/// A load that finds its key takes the same level sets (their far-field companions are built
-/// once, on first use, and shared too). Thread-safe; two loads that miss at the same moment both
-/// build. Entries live as long as the cache.
+/// Level sets shared between loads of the same obstacles (the jobs of a batch that render one
+/// scene): keyed by the obstacle's JSON and position, the voxel size and band it resolves to, the
+/// content of every file it reads and the bounds of its unbounded half-spaces. A load that finds
+/// its key takes the same level sets (their far-field companions are built once, on first use,
+/// and shared too). Thread-safe; two loads that miss at the same moment both build. Entries live
+/// as long as the cache.
+///
+/// With a directory (`batch --cache DIR`), entries also outlive the process: each is stored as
+/// `DIR/levelset-HASH.vdb` (HASH: FNV-1a 64 of the key; the key itself is in the file and checked
+/// on reading), written atomically, so that later runs and the other shards of a cluster array on
+/// a shared file system read what one of them built. A file that is corrupt, truncated, of
+/// another version or made for another key is ignored with a warning, rebuilt and replaced.
 class LevelSetCache {
 public:
-    std::vector<Obstacle> find(const std::string& key) const;  ///< empty when absent
+    using Warn = std::function<void(const std::string&)>;
+    LevelSetCache() = default;
+    /// `directory` is created when missing; `warn` receives one line per ignored file.
+    explicit LevelSetCache(std::string directory, Warn warn = {});
+
+    struct Found {
+        std::vector<Obstacle> obstacles;  ///< empty when absent
+        std::string file;                 ///< the cache file it was read from ("" from memory)
+    };
+    /// The entry of `key`: from memory, else from the directory's file (then kept in memory).
+    Found find(const std::string& key);
+    /// Keeps an entry and, with a directory, writes its file (its companions are written by a
+    /// later persist() once they are built). A failed write is a warning, not an error.
     void insert(const std::string& key, std::vector<Obstacle> obstacles);
+    /// Rewrites the files of entries whose far-field companions have been built since they were
+    /// written (call it when a render has ended); nothing without a directory.
+    void persist();
     size_t size() const;
+    const std::string& directory() const { return mDirectory; }
+    /// The file an entry is stored in (meaningful with a directory).
+    std::string fileFor(const std::string& key) const;
 
 private:
+    struct Entry {
+        std::vector<Obstacle> obstacles;
+        int farFieldsWritten = -1;  ///< companions in its file; -1: not written
+    };
+    void write(const std::string& key, Entry& entry);  // with mMutex held
     mutable std::mutex mMutex;
-    std::map<std::string, std::vector<Obstacle>> mEntries;
+    std::map<std::string, Entry> mEntries;
+    std::string mDirectory;
+    Warn mWarn;
 };
 
 /// Loads and validates a scene file; builds the level sets of implicit obstacles, meshes and

@@ -1,12 +1,14 @@
 // `penumbra batch MANIFEST.json [--jobs N] [--shard I/N] [--shard-count N] [--resume]
-// [--summary FILE.csv|.json] [--list] [--quiet]`: runs a batch manifest (docs/batch.md) with
+// [--summary FILE.csv|.json] [--cache DIR] [--list] [--status] [--quiet]`: runs a batch manifest (docs/batch.md) with
 // the library's batch runner, reports progress on stderr, failed jobs as they happen, and a
 // summary. Exit codes: 0 every selected job rendered or skipped, 1 at least one job failed,
 // 2 bad options or manifest, clashing files, or another run of the same manifest (and shard)
 // holding its lock (nothing was run).
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -27,7 +29,9 @@ struct BatchCommandOptions {
     int shardCount = 0;
     bool resume = false;
     std::string summary;
+    std::string cache;
     bool list = false;
+    bool status = false;
     bool quiet = false;
     const CLI::App* command = nullptr;
     bool given(const char* flag) const { return command && command->count(flag) > 0; }
@@ -99,15 +103,79 @@ Shard chooseShard(const BatchCommandOptions& o) {
     return {};
 }
 
+// Seconds per finished job as a text plot, through gnuplot's dumb terminal when gnuplot is on
+// the PATH (nothing otherwise).
+void plotSeconds(const std::vector<JobRecord>& records) {
+    std::string data;
+    size_t last = 0;
+    for (const JobRecord& r : records) {
+        last = std::max(last, r.job);
+        if (r.state == JobState::Done) data += std::to_string(r.job) + " " + std::to_string(r.seconds) + "\n";
+    }
+    if (data.empty() || std::system("command -v gnuplot >/dev/null 2>&1") != 0) return;
+    std::fflush(stdout);
+    FILE* gp = ::popen("gnuplot 2>/dev/null", "w");
+    if (!gp) return;
+    std::fprintf(gp,
+                 "set terminal dumb size 79,20\nset title 'render seconds per job'\n"
+                 "set xlabel 'job'\nset key off\nset xrange [-0.5:%zu.5]\nset yrange [0:*]\n"
+                 "plot '-' using 1:2 with impulses\n%se\n",
+                 last, data.c_str());
+    ::pclose(gp);
+}
+
+// `--status`: what the files of every shard say, without running or locking anything.
+int printStatus(const BatchCommandOptions& o, const BatchManifest& manifest, const Shard& shard,
+                const std::vector<size_t>& selected) {
+    const std::vector<JobRecord> records = readJobRecords(manifest, selected);
+    // With a shard count (--shard-count, or the environment) the table says which shard owns
+    // each job; --shard I/N restricts it to that shard.
+    const int count = shard.count > 1 ? shard.count : std::max(1, o.shardCount);
+    size_t counts[3] = {0, 0, 0};
+    if (!o.quiet) std::printf("index\tshard\tstatus\tseconds\tshadow_rays\tname\n");
+    for (const JobRecord& r : records) {
+        ++counts[int(r.state)];
+        if (o.quiet) continue;
+        std::printf("%zu\t%zu/%d\t%s\t%.3f\t%llu\t%s\n", r.job, r.job % size_t(count), count,
+                    jobStateName(r.state), r.seconds, static_cast<unsigned long long>(r.shadowRays),
+                    manifest.jobs[r.job].name.c_str());
+    }
+    if (!o.quiet && count > 1) {
+        for (int k = 0; k < count; ++k) {
+            size_t c[3] = {0, 0, 0};
+            for (const JobRecord& r : records)
+                if (int(r.job % size_t(count)) == k) ++c[int(r.state)];
+            if (c[0] + c[1] + c[2] == 0) continue;
+            std::printf("shard %d/%d: %zu done, %zu failed, %zu missing\n", k, count, c[0], c[1], c[2]);
+        }
+    }
+    if (!o.quiet) plotSeconds(records);
+    std::printf("penumbra: batch %s: %zu jobs: %zu done, %zu failed, %zu missing\n",
+                o.manifest.c_str(), records.size(), counts[int(JobState::Done)],
+                counts[int(JobState::Failed)], counts[int(JobState::Missing)]);
+    for (const JobRecord& r : records) {
+        if (r.state != JobState::Failed) continue;
+        std::printf("failed: job %zu '%s'%s: %s\n", r.job, manifest.jobs[r.job].name.c_str(),
+                    r.host.empty() ? "" : (" on " + r.host).c_str(), r.error.c_str());
+    }
+    return counts[int(JobState::Done)] == records.size() ? 0 : 1;
+}
+
 int runBatchCommand(const BatchCommandOptions& o) {
     // Everything that can be refused is refused before the first job starts.
     if (o.given("--jobs") && (o.jobs < 1 || o.jobs > 1024)) {
         throw InputError("", "--jobs", "must be in [1, 1024], got " + std::to_string(o.jobs));
     }
     if (!o.summary.empty()) checkSummaryPath(o.summary, "--summary");
-    const Shard shard = chooseShard(o);
+    if (o.status && (o.list || o.resume || !o.summary.empty() || !o.cache.empty())) {
+        throw InputError("", "--status", "reads the records only: it takes no --list, --resume, "
+                                         "--summary or --cache");
+    }
+    // --status alone reads every job; --shard-count alone (no index) is allowed there.
+    const Shard shard = o.status && o.shard.empty() ? Shard{} : chooseShard(o);
     const BatchManifest manifest = loadManifest(o.manifest);
     const std::vector<size_t> selected = shardJobs(manifest.jobs.size(), shard);
+    if (o.status) return printStatus(o, manifest, shard, selected);
 
     if (o.list) {
         for (size_t i : selected) {
@@ -128,6 +196,9 @@ int runBatchCommand(const BatchCommandOptions& o) {
     BatchReporter reporter(!o.quiet);
     BatchCallbacks callbacks;
     callbacks.progress = [&](const BatchProgressInfo& p) { reporter.update(p); };
+    callbacks.warning = [&](const std::string& text) {
+        if (!o.quiet) reporter.message("penumbra: warning: " + text);
+    };
     callbacks.jobDone = [&](const BatchJob& job, const JobResult& r) {
         // Failures are reported even with --quiet: they are errors, not progress.
         if (r.status == JobStatus::Failed) {
@@ -139,6 +210,7 @@ int runBatchCommand(const BatchCommandOptions& o) {
     options.threads = o.jobs;
     options.resume = o.resume;
     options.summary = o.summary;  // checked against the batch's files before any job runs
+    options.cacheDir = o.cache;
     const auto start = std::chrono::steady_clock::now();
     const std::vector<JobResult> results = runBatch(manifest, selected, options, callbacks);
     const double seconds =
@@ -192,7 +264,13 @@ Runner addBatchCommand(CLI::App& app) {
     cmd->add_flag("--resume", o->resume,
                   "Skip jobs whose output already exists with the same settings");
     cmd->add_option("--summary", o->summary, "Per-job summary: .csv or .json");
+    cmd->add_option("--cache", o->cache,
+                    "Level-set cache directory shared by runs and shards (created when "
+                    "missing; overrides the manifest's \"cache\")");
     cmd->add_flag("--list", o->list, "Print the jobs of this shard (index, name, output) and exit");
+    cmd->add_flag("--status", o->status,
+                  "Report every job's state from the files of all shards (done, failed with its "
+                  "error, missing) and exit: 0 when all are done, 1 otherwise");
     cmd->add_flag("-q,--quiet", o->quiet, "No progress or summary line (failures still print)");
     o->command = cmd;
     return [o]() { return runBatchCommand(*o); };

@@ -42,6 +42,7 @@ struct RenderOptions {
     int mcInitialDepth = 0;
     uint64_t seed = 0;
     std::string stats;
+    std::string cache;  // level-set cache directory ("" none)
     std::string aovRays, aovFormFactor, aovGradient, aovMask, aovErrorBound;
     bool quiet = false;
     bool verbose = false;
@@ -239,7 +240,13 @@ int runRender(const RenderOptions& o) {
         removeStaleTemporaries(dir.empty() ? "." : dir);
     }
 
-    Scene scene = loadScene(o.scene);
+    std::unique_ptr<LevelSetCache> cache;
+    if (!o.cache.empty()) {
+        cache = std::make_unique<LevelSetCache>(o.cache, [&](const std::string& text) {
+            if (!o.quiet) std::cerr << "penumbra: warning: " << text << "\n";
+        });
+    }
+    Scene scene = loadScene(o.scene, cache.get());
     for (const auto& [path, pointer] : scene.inputFiles) {
         outputs.addInput(path, pointer + " of " + o.scene);
     }
@@ -261,6 +268,7 @@ int runRender(const RenderOptions& o) {
     RenderResult result =
         render(scene, settings, [&](int done, int total) { reporter.update(done, total); });
     reporter.finish();
+    if (cache) cache->persist();  // the far-field companions the render built
 
     const RenderStats& st = result.stats;
     ImageMetadata metadata = metadataFor(o, settings, st);
@@ -322,6 +330,9 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_option("--width", o->width, "Image width in pixels (default: the camera's)");
     cmd->add_option("--height", o->height, "Image height in pixels (default: the camera's)");
     cmd->add_option("--stats", o->stats, "Write render statistics to this JSON file");
+    cmd->add_option("--cache", o->cache,
+                    "Level-set cache directory: level sets (and far-field companions) built "
+                    "by earlier runs are read from it, new ones stored (created when missing)");
     cmd->add_option("--aci-grid", o->aciGrid, "First-level grid p: p x p squares on the light")
         ->capture_default_str();
     cmd->add_option("--aci-steps", o->aciSteps, "Dichotomy steps n along a crossed side")
