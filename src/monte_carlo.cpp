@@ -192,9 +192,10 @@ double areaIntegrand(const Setup& s, const Vec3& p) {
     return cosM * cosL * s.area / (kPi * r2 * r2);
 }
 
-// A positive integrand costs a ray; the caller counts it.
-bool visible(const Setup& s, const Vec3& p, Occluder::Query& query) {
-    return !query.occluded(s.origin, p);
+// The light that reaches M from P: 0 when an obstacle blocks the ray, else its transmittance
+// through the media (1 without any). A positive integrand costs a ray; the caller counts it.
+double transmitted(const Setup& s, const Vec3& p, Occluder::Query& query) {
+    return query.transmitted(s.origin, p);
 }
 
 Estimate finish(double f, const Receiver& r, uint64_t first, uint64_t second) {
@@ -246,7 +247,7 @@ Estimate monteCarloReference(const Receiver& r, const RectLight& light, Occluder
         const double f = areaIntegrand(s, p);
         if (f <= 0.0) return;
         ++rays;
-        if (visible(s, p, query)) sum += f;
+        sum += f * transmitted(s, p, query);
     };
     for (int j = 0; j < ky; ++j) {
         for (int i = 0; i < kx; ++i) {
@@ -285,11 +286,9 @@ Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder:
         cell.value[q] = 0.0;
         if (!cell.cast[q]) return;
         ++rays;
-        if (visible(s, p, query)) {
-            cell.value[q] = f;
-        } else {
-            cell.hidden[q] = true;
-        }
+        const double t = transmitted(s, p, query);
+        cell.value[q] = f * t;
+        cell.hidden[q] = t == 0.0;
     };
 
     // The initial cells: a 2^d x 2^d grid (d = initialDepth), four samples each.
@@ -383,7 +382,7 @@ SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occlude
         if (!(c > 0.0)) continue;
         out.all += c;
         ++out.rays;
-        if (visible(s, p, query)) out.visible += c;
+        out.visible += c * transmitted(s, p, query);
     }
     return out;
 }

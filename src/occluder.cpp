@@ -139,6 +139,15 @@ void Occluder::add(ObstacleShape shape) {
     mFar.push_back(ls && *ls ? std::make_shared<FarField>(*ls) : nullptr);
 }
 
+void Occluder::addMedium(Medium medium) {
+    if (!medium.grid) throw std::invalid_argument("Occluder::addMedium: null grid");
+    const VolumeInfo info = describe(*medium.grid);
+    Box3 b;
+    if (info.maxDensity > 0.0 && medium.extinction > 0.0) b = info.boundsWS;
+    mMedia.push_back(std::move(medium));
+    mMediumBounds.push_back(b);
+}
+
 Occluder::Query Occluder::makeQuery() const { return Query(*this); }
 
 void Occluder::prepareClearance() const {
@@ -152,6 +161,8 @@ void Occluder::prepareClearance() const {
 struct Occluder::Query::Impl {
     /// Index-aligned with the occluder's shapes; null for analytic shapes and empty grids.
     std::vector<std::unique_ptr<LevelSetSlot>> levelSets;
+    /// Index-aligned with the occluder's media.
+    std::vector<std::unique_ptr<VolumeSampler>> media;
 };
 
 Occluder::Query::Query(const Occluder& occluder)
@@ -163,6 +174,9 @@ Occluder::Query::Query(const Occluder& occluder)
         if (ls && !occluder.bounds(i).empty()) {
             mImpl->levelSets[i] = std::make_unique<LevelSetSlot>((*ls)->grid());
         }
+    }
+    for (size_t i = 0; i < occluder.mediumCount(); ++i) {
+        mImpl->media.push_back(std::make_unique<VolumeSampler>(*occluder.medium(i).grid));
     }
 }
 
@@ -179,6 +193,7 @@ Occluder::Query::Query(const Query& other)
             mImpl->levelSets[i] = std::make_unique<LevelSetSlot>(*slot);
         }
     }
+    for (const auto& m : other.mImpl->media) mImpl->media.push_back(std::make_unique<VolumeSampler>(*m));
 }
 
 Occluder::Query::Query(Query&&) noexcept = default;
@@ -186,6 +201,63 @@ Occluder::Query::~Query() = default;
 
 bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit) {
     return occluded(from, to, tHit, nullptr);
+}
+
+double Occluder::Query::transmittance(const Vec3& from, const Vec3& to) {
+    const Vec3 delta = to - from;
+    const double length = glm::length(delta);
+    if (!(length > 0.0)) return 1.0;
+    const Vec3 dir = delta / length;
+    const Vec3 invDir = 1.0 / dir;
+    double depth = 0.0;
+    bool marched = false;
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mMedia ? (*mMedia)[k] : k;
+        const Box3& b = mOccluder->mediumBounds(i);
+        if (b.empty()) continue;
+        double t0 = 0.0, t1 = length;
+        if (!b.clipRay(from, invDir, t0, t1)) continue;
+        marched = true;
+        depth += mOccluder->medium(i).extinction * mImpl->media[i]->opticalDepth(from, dir, t0, t1);
+    }
+    if (marched) ++mRays;
+    return depth > 0.0 ? std::exp(-depth) : 1.0;
+}
+
+double Occluder::Query::transmitted(const Vec3& from, const Vec3& to) {
+    if (occluded(from, to)) return 0.0;  // counts the ray
+    const uint64_t rays = mRays;
+    const double t = transmittance(from, to);
+    mRays = rays;  // the same segment: one ray
+    return t;
+}
+
+Box3 Occluder::Query::mediaBounds() const {
+    Box3 out;
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const Box3& b = mOccluder->mediumBounds(mMedia ? (*mMedia)[k] : k);
+        if (b.empty()) continue;
+        out.extend(b.lo);
+        out.extend(b.hi);
+    }
+    return out;
+}
+
+bool Occluder::Query::mediaBetween(const Box3& origin, const Box3& target) const {
+    Box3 hull = origin;
+    hull.extend(target.lo);
+    hull.extend(target.hi);
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const Box3& b = mOccluder->mediumBounds(mMedia ? (*mMedia)[k] : k);
+        if (b.empty()) continue;
+        if (b.lo.x <= hull.hi.x && b.hi.x >= hull.lo.x && b.lo.y <= hull.hi.y &&
+            b.hi.y >= hull.lo.y && b.lo.z <= hull.hi.z && b.hi.z >= hull.lo.z)
+            return true;
+    }
+    return false;
 }
 
 namespace {

@@ -199,6 +199,7 @@ struct ThreadState {
     std::vector<Hit> hits;
     std::vector<PixelSum> sums;
     std::vector<uint32_t> candidates;
+    std::vector<uint32_t> mediaCandidates;  // media in the span's shaft
     std::vector<uint32_t> single{0};
     std::vector<uint8_t> lit;
 };
@@ -331,7 +332,18 @@ public:
         } else {
             for (size_t i = 0; i < mCtx.occluder.size(); ++i) cand.push_back(uint32_t(i));
         }
-        if (cand.empty()) ++st.culledSpans;
+        // Media the shaft meets (their bounds padded by the interpolation kernel).
+        auto& media = mTs.mediaCandidates;
+        media.clear();
+        {
+            Shaft shaft(spanBox, lightBox);
+            for (size_t i = 0; i < mCtx.occluder.mediumCount(); ++i) {
+                const Box3& b = mCtx.occluder.mediumBounds(i);
+                if (!b.empty() && (!mSettings.shaftCulling || shaft.overlaps(b)))
+                    media.push_back(uint32_t(i));
+            }
+        }
+        if (cand.empty() && media.empty()) ++st.culledSpans;
 
         // The span's shaft is as wide as the span; each pixel's own shaft (its ray origins to
         // the light) is narrower. A pixel whose shaft meets no candidate is unshadowed: the
@@ -339,7 +351,7 @@ public:
         for (int x = x0; x <= x1; ++x) {
             uint8_t& state = mTs.lit[size_t(x - x0)];
             if (state != kNeedsRays) continue;
-            bool open = cand.empty();
+            bool open = cand.empty() && media.empty();
             if (!open && mSettings.shaftCulling) {
                 Box3 origin;
                 origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
@@ -347,6 +359,8 @@ public:
                 Shaft pixelShaft(origin, lightBox);
                 open = std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
                     return pixelShaft.overlaps(mCtx.occluder.bounds(i));
+                }) && std::none_of(media.begin(), media.end(), [&](uint32_t i) {
+                    return pixelShaft.overlaps(mCtx.occluder.mediumBounds(i));
                 });
             }
             if (!open) continue;
@@ -357,15 +371,19 @@ public:
             store(x, unoccludedFormFactor(mLight, r), grad);
             ++st.closedFormPixels;
         }
-        if (cand.empty()) return;
+        if (cand.empty() && media.empty()) return;
 
         mTs.shadow.restrictTo(&cand);
-        if (isMonteCarlo(mSettings.method)) {
+        mTs.shadow.restrictMediaTo(&media);
+        if (isMonteCarlo(mSettings.method) || !media.empty()) {
             // One estimate per pixel that needs rays: the same pixels as the ACI pipeline's.
+            // Through media, ACI too evaluates every such pixel (aciThroughMedia): its cells
+            // follow the transmittance, which pattern coherence does not see.
             for (int x = x0; x <= x1; ++x) {
                 if (mTs.lit[size_t(x - x0)] == kNeedsRays) monteCarlo(x);
             }
             mTs.shadow.restrictTo(nullptr);
+            mTs.shadow.restrictMediaTo(nullptr);
             return;
         }
         mGrid = mSettings.aci.grid;  // the adaptive density starts afresh on every span
@@ -389,6 +407,10 @@ public:
         if (!seesLight(mLight, r)) return;
         mGrid = mSettings.aci.grid;
         mTs.shadow.restrictTo(nullptr);
+        if (mCtx.occluder.mediumCount() > 0) {
+            monteCarlo(x);  // estimate(): aciThroughMedia where media lie in between
+            return;
+        }
         Estimate e = evaluate(x, /*adapt=*/false);
         store(x, e.formFactor, e.gradient, e.errorBound);
     }
@@ -414,11 +436,16 @@ private:
                    : mSettings.aci.rayOffset;
     }
 
-    // A Monte Carlo estimate at pixel x, seeded by the pixel and the light only.
+    // One estimate at pixel x through estimate(): a Monte Carlo method (seeded by the pixel and
+    // the light only), or ACI through media.
     void monteCarlo(int x) {
         McSettings s = mSettings.mc;
         s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
+        AciSettings a = mSettings.aci;
+        a.rayOffset = s.rayOffset;
+        a.reuseCorners = false;
+        mTs.integrator.setSettings(a);
         const Receiver r = receiver(x);
         uint64_t before = mTs.shadow.raysCast();
         const Estimate e = estimate(mSettings.method, r, mLight, mTs.shadow, mTs.integrator, s);
@@ -426,7 +453,9 @@ private:
         mTs.sums[size_t(x)].shadowed = true;
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;
         mTs.stats.secondLevelRays += e.counts.secondLevelRays;
-        store(x, e.formFactor, Vec3(0.0), e.errorBound);
+        if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
+        store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
+              e.errorBound);
     }
 
     Estimate evaluate(int x, bool adapt) {

@@ -31,6 +31,7 @@
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"
 #include "penumbra/shape.h"
+#include "penumbra/volume.h"
 
 namespace penumbra {
 
@@ -494,10 +495,17 @@ struct ImplicitPlan {
 };
 struct VdbPlan {
     std::string path;  ///< resolved
-    std::string grid;  ///< empty: every level-set grid
+    std::string grid;  ///< empty: every level-set grid (and every fog volume)
     Similarity transform;
+    double extinction = 1.0;  ///< for the file's volumes
 };
-using ShapePlan = std::variant<AnalyticSphere, AnalyticBox, ImplicitPlan, VdbPlan>;
+struct ObstaclePlan;
+/// A participating medium made from a shape: its level set turned into a fog volume.
+struct FogPlan {
+    std::shared_ptr<ObstaclePlan> shape;
+    double density = 1.0, falloff = 0.0, extinction = 1.0;
+};
+using ShapePlan = std::variant<AnalyticSphere, AnalyticBox, ImplicitPlan, VdbPlan, FogPlan>;
 
 struct ObstaclePlan {
     std::string pointer;
@@ -876,12 +884,27 @@ std::string contentDigest(const std::string& path) {
     }
 }
 
+ObstaclePlan parseFog(const Node& node, size_t index, const LevelSetSettings& global);
+
+/// A number >= 0 (0 allowed, unlike numberAbove).
+double nonNegative(const Object& obj, const std::string& key, double fallback) {
+    if (!obj.has(key)) return fallback;
+    const Node n = obj.at(key);
+    const double x = n.number();
+    if (x < 0.0) n.fail("must be >= 0, got " + n.json().dump());
+    return x;
+}
+
 ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSettings& global) {
+    if (node.json().is_object() && node.json().contains("type") && node.json()["type"] == "fog") {
+        return parseFog(node, index, global);
+    }
     const std::string kind = readType(node, "obstacle");
     std::vector<std::string> keys = {"type", "name", "albedo", "transform"};
     const std::vector<std::string> own = shapeKeys(kind);
     keys.insert(keys.end(), own.begin(), own.end());
     if (kind != "vdb") keys.insert(keys.end(), {"voxel_size", "half_width"});
+    if (kind == "vdb") keys.push_back("extinction");
     if (kind == "sphere" || kind == "box") keys.push_back("analytic");
     const Object obj(node, keys);
 
@@ -897,6 +920,7 @@ ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSetting
         vdb.path = existingFile(obj.at("file"));
         if (obj.has("grid")) vdb.grid = obj.at("grid").nonEmptyString();
         if (obj.has("transform")) vdb.transform = parseTransform(obj.at("transform")).similarity;
+        vdb.extinction = nonNegative(obj, "extinction", 1.0);
         plan.shape = vdb;
         return plan;
     }
@@ -928,6 +952,42 @@ ObstaclePlan parseObstacle(const Node& node, size_t index, const LevelSetSetting
                           plan.halfWidth};
     checkIndexRange(obj.node(), shapeBounds(implicit.node), plan.voxelSize);
     plan.shape = std::move(implicit);
+    return plan;
+}
+
+/// {"type": "fog", "shape": {an obstacle}, "density", "falloff", "extinction", "albedo"}: the
+/// shape's level set (with an interior band deep enough for the falloff) becomes a fog volume.
+ObstaclePlan parseFog(const Node& node, size_t index, const LevelSetSettings& global) {
+    const Object obj(node, {"type", "name", "shape", "density", "falloff", "extinction", "albedo",
+                            "voxel_size", "half_width"});
+    ObstaclePlan plan;
+    plan.pointer = node.pointer();
+    plan.index = index;
+    plan.type = "fog";
+    if (obj.has("name")) plan.name = obj.at("name").nonEmptyString();
+    plan.albedo = obj.rgb("albedo", plan.albedo);
+    FogPlan fog;
+    fog.density = nonNegative(obj, "density", 1.0);
+    fog.falloff = nonNegative(obj, "falloff", 0.0);
+    fog.extinction = nonNegative(obj, "extinction", 1.0);
+    LevelSetSettings inner = global;
+    inner.voxelSize = obj.numberAbove("voxel_size", 0.0, global.voxelSize);
+    inner.halfWidth = obj.numberAbove("half_width", 1.0, global.halfWidth);
+    ObstaclePlan shape = parseObstacle(obj.at("shape"), index, inner);
+    if (std::holds_alternative<FogPlan>(shape.shape)) obj.at("shape").fail("a fog's shape is not a fog");
+    if (std::holds_alternative<AnalyticSphere>(shape.shape) ||
+        std::holds_alternative<AnalyticBox>(shape.shape)) {
+        obj.at("shape").fail("a fog's shape is voxelized: drop \"analytic\"");
+    }
+    if (auto* implicit = std::get_if<ImplicitPlan>(&shape.shape)) {
+        // The ramp lies inside the surface: the band must reach that deep.
+        implicit->halfWidth = std::max(implicit->halfWidth, fog.falloff / implicit->voxelSize + 1.5);
+        shape.halfWidth = implicit->halfWidth;
+    }
+    plan.voxelSize = shape.voxelSize;
+    plan.halfWidth = shape.halfWidth;
+    fog.shape = std::make_shared<ObstaclePlan>(std::move(shape));
+    plan.shape = std::move(fog);
     return plan;
 }
 
@@ -977,6 +1037,11 @@ Box3 sceneBounds(const Scene& scene, const std::vector<ObstaclePlan>& plans) {
         } else if (const auto* i = std::get_if<ImplicitPlan>(&p.shape)) {
             const Box3 nb = shapeBounds(i->node);  // ignores unbounded half-spaces
             if (!nb.empty()) b.extend(nb);
+        } else if (const auto* f = std::get_if<FogPlan>(&p.shape)) {
+            if (const auto* fi = std::get_if<ImplicitPlan>(&f->shape->shape)) {
+                const Box3 nb = shapeBounds(fi->node);
+                if (!nb.empty()) b.extend(nb);
+            }
         }
     }
     const double pad = 0.1 * glm::length(b.hi - b.lo);
@@ -987,6 +1052,8 @@ double estimatedBytes(const ObstaclePlan& plan) {
     if (const auto* i = std::get_if<ImplicitPlan>(&plan.shape)) {
         return estimateBuildBytes(i->node, i->voxelSize, i->halfWidth);
     }
+    // A fog: its shape's level set, and the fog grid made from it (about as large).
+    if (const auto* f = std::get_if<FogPlan>(&plan.shape)) return 2.0 * estimatedBytes(*f->shape);
     return 0.0;  // analytic shapes need nothing; .vdb files are as large as they are
 }
 
@@ -1063,8 +1130,102 @@ ObstacleBuild reportFor(const std::string& name, const std::string& type, const 
     return b;
 }
 
+ObstacleBuild reportForVolume(const std::string& name, const std::string& type,
+                              const VolumeGridPtr& v) {
+    const VolumeInfo info = describe(*v);
+    ObstacleBuild b;
+    b.name = name;
+    b.type = type;
+    b.voxelSize = info.voxelSize;
+    b.activeVoxels = info.activeVoxels;
+    b.bytes = info.bytes;
+    return b;
+}
+
 void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out,
-                    BuildReport& report, LevelSetCache* cache) {
+                    std::vector<Volume>& volumes, BuildReport& report, LevelSetCache* cache);
+
+/// A fog: its shape's level sets (built without a cache), each made a fog volume.
+void buildFog(ObstaclePlan& plan, const std::string& file, std::vector<Volume>& volumes,
+              BuildReport& report) {
+    const std::string name =
+        plan.name.empty() ? "obstacle_" + std::to_string(plan.index) : plan.name;
+    const Clock::time_point start = Clock::now();
+    FogPlan& fog = std::get<FogPlan>(plan.shape);
+    std::vector<Obstacle> shapes;
+    std::vector<Volume> unused;
+    BuildReport shapeReport;
+    buildObstacles(*fog.shape, file, shapes, unused, shapeReport, nullptr);
+    for (size_t j = 0; j < shapes.size(); ++j) {
+        const std::string n = shapes.size() == 1 ? name : name + "/" + std::to_string(j);
+        const VolumeGridPtr v =
+            fogFromLevelSet(*std::get<LevelSetPtr>(shapes[j].shape), fog.density, fog.falloff, n);
+        volumes.push_back({n, v, fog.extinction, plan.albedo});
+        ObstacleBuild r = reportForVolume(n, "fog", v);
+        r.estimatedBytes = j == 0 ? estimatedBytes(plan) : 0.0;
+        r.seconds = j == 0 ? secondsSince(start) : 0.0;
+        r.note = "fog volume";
+        report.volumes.push_back(r);
+    }
+}
+
+/// The volumes of a .vdb obstacle whose grid (or some of whose grids) are densities.
+void buildVdbVolumes(const ObstaclePlan& plan, const std::string& file, const std::string& gridName,
+                     std::vector<Volume>& volumes, BuildReport& report) {
+    const Clock::time_point start = Clock::now();
+    const auto& vdb = std::get<VdbPlan>(plan.shape);
+    std::vector<VolumeGridPtr> grids;
+    try {
+        grids = readVolumes(vdb.path, gridName, plan.pointer);
+    } catch (const InputError& e) {
+        rethrowUnder(e, file, plan.pointer);
+    }
+    const double seconds = secondsSince(start);
+    for (size_t j = 0; j < grids.size(); ++j) {
+        const Similarity& t = vdb.transform;
+        const VolumeGridPtr g = transformVolume(grids[j], t.rotation, t.scale, t.translate);
+        const std::string gridName2 = describe(*g).name;
+        std::string n = !plan.name.empty() ? plan.name : gridName2;
+        if (grids.size() > 1 && !plan.name.empty()) n = plan.name + "/" + gridName2;
+        if (n.empty()) n = "obstacle_" + std::to_string(plan.index);
+        volumes.push_back({n, g, vdb.extinction, plan.albedo});
+        ObstacleBuild r = reportForVolume(n, plan.type, g);
+        r.seconds = j == 0 ? seconds : 0.0;
+        r.note = "fog volume read from " + vdb.path;
+        report.volumes.push_back(r);
+    }
+}
+
+void buildObstacles(ObstaclePlan& plan, const std::string& file, std::vector<Obstacle>& out,
+                    std::vector<Volume>& volumes, BuildReport& report, LevelSetCache* cache) {
+    if (std::holds_alternative<FogPlan>(plan.shape)) {
+        buildFog(plan, file, volumes, report);
+        return;
+    }
+    bool levelSetsToo = true;  // a .vdb of volumes only has no level set to read
+    if (const auto* vdb = std::get_if<VdbPlan>(&plan.shape)) {
+        VdbGridKinds kinds;
+        try {
+            kinds = vdbGridKinds(vdb->path, plan.pointer);
+        } catch (const InputError& e) {
+            rethrowUnder(e, file, plan.pointer);
+        }
+        const auto holds = [](const std::vector<std::string>& v, const std::string& n) {
+            return std::find(v.begin(), v.end(), n) != v.end();
+        };
+        if (!vdb->grid.empty() && !holds(kinds.levelSets, vdb->grid) &&
+            (holds(kinds.volumes, vdb->grid) || holds(kinds.others, vdb->grid))) {
+            // A named grid that is not a level set: a density (readVolumes says if it cannot be).
+            buildVdbVolumes(plan, file, vdb->grid, volumes, report);
+            return;
+        }
+        if (vdb->grid.empty() && !kinds.volumes.empty()) {
+            buildVdbVolumes(plan, file, "", volumes, report);
+            levelSetsToo = !kinds.levelSets.empty();
+            if (!levelSetsToo) return;
+            cache = nullptr;  // a cache entry would hold the level sets only
+        }
+    }
     const std::string name =
         plan.name.empty() ? "obstacle_" + std::to_string(plan.index) : plan.name;
     const Clock::time_point start = Clock::now();
@@ -1228,6 +1389,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     const Box3 bounds = sceneBounds(scene, plans);
     for (ObstaclePlan& p : plans) {
         auto* implicit = std::get_if<ImplicitPlan>(&p.shape);
+        if (auto* fog = std::get_if<FogPlan>(&p.shape)) implicit = std::get_if<ImplicitPlan>(&fog->shape->shape);
         if (!implicit) continue;
         bool unbounded = false;
         forEachNode(implicit->node, p.pointer, [&](ShapeNode& node, const std::string&) {
@@ -1255,7 +1417,7 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     const Clock::time_point start = Clock::now();
     for (ObstaclePlan& p : plans) {
         try {
-            buildObstacles(p, ctx.file, scene.obstacles, scene.build, ctx.cache);
+            buildObstacles(p, ctx.file, scene.obstacles, scene.volumes, scene.build, ctx.cache);
         } catch (const std::bad_alloc&) {
             // A runtime failure (exit 1), not bad input, but the user needs to know which one.
             throw std::runtime_error(ctx.file + ": " + p.pointer +
@@ -1347,7 +1509,9 @@ Occluder Scene::makeOccluder() const {
     std::vector<ObstacleShape> shapes;
     shapes.reserve(obstacles.size());
     for (const Obstacle& o : obstacles) shapes.push_back(o.shape);
-    return Occluder(std::move(shapes));
+    Occluder occ(std::move(shapes));
+    for (const Volume& v : volumes) occ.addMedium({v.grid, v.extinction});
+    return occ;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1427,18 +1591,20 @@ std::string BuildReport::toJson() const {
     j["bytes"] = bytes();
     j["estimated_bytes"] = estimatedBytes;
     j["memory_limit_bytes"] = memoryLimitBytes;
-    j["obstacles"] = Json::array();
-    for (const ObstacleBuild& o : obstacles) {
-        j["obstacles"].push_back({{"name", o.name},
-                                  {"type", o.type},
-                                  {"analytic", o.analytic},
-                                  {"voxel_size", o.voxelSize},
-                                  {"active_voxels", o.activeVoxels},
-                                  {"bytes", o.bytes},
-                                  {"estimated_bytes", o.estimatedBytes},
-                                  {"seconds", o.seconds},
-                                  {"shared", o.shared},
-                                  {"note", o.note}});
+    for (const char* list : {"obstacles", "volumes"}) {
+        j[list] = Json::array();
+        for (const ObstacleBuild& o : list[0] == 'o' ? obstacles : volumes) {
+            j[list].push_back({{"name", o.name},
+                               {"type", o.type},
+                               {"analytic", o.analytic},
+                               {"voxel_size", o.voxelSize},
+                               {"active_voxels", o.activeVoxels},
+                               {"bytes", o.bytes},
+                               {"estimated_bytes", o.estimatedBytes},
+                               {"seconds", o.seconds},
+                               {"shared", o.shared},
+                               {"note", o.note}});
+        }
     }
     j["level_sets_built"] = levelSetsBuilt;
     j["level_sets_shared"] = levelSetsShared;

@@ -266,15 +266,40 @@ TEST_CASE("E13 corrupt .obj file", "[errors]") {
                    "range (2 vertices read so far)"});
 }
 
-TEST_CASE("E14 grid that is not a level set", "[errors]") {
+TEST_CASE("E14 grid that is neither a level set nor a density", "[errors]") {
     Case c("e14");
+    openvdb::initialize();
+    auto field = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
+    field->tree().setValue(openvdb::Coord(0, 0, 0), openvdb::Vec3s(1.0f, 0.0f, 0.0f));
+    field->setName("wind");
+    writeGrid(c.path("wind.vdb"), field);
+    expectRefused(
+        c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "wind.vdb", "grid": "wind"}])"), "",
+        2, {"scene.json: /obstacles/0", "wind.vdb", "grid 'wind' holds vec3s values"});
+}
+
+TEST_CASE("E41 a density grid with a negative or NaN value", "[errors]") {
+    Case c("e41");
     openvdb::FloatGrid::Ptr fog = smallSphere();
     openvdb::tools::sdfToFogVolume(*fog);
     REQUIRE(fog->getGridClass() == openvdb::GRID_FOG_VOLUME);
-    writeGrid(c.path("fog.vdb"), fog);
-    expectRefused(
-        c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "fog.vdb", "grid": "ball"}])"), "",
-        2, {"scene.json: /obstacles/0", "fog.vdb", "not a level set"});
+    SECTION("negative") {
+        fog->tree().setValue(openvdb::Coord(1, 2, 20), -0.5f);
+        writeGrid(c.path("fog.vdb"), fog);
+        expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "fog.vdb"}])"), "", 2,
+                      {"scene.json: /obstacles/0", "fog.vdb", "grid 'ball': density -0.5 at voxel [1, 2, 20]"});
+    }
+    SECTION("NaN") {
+        fog->tree().setValue(openvdb::Coord(0, 0, 20), std::nanf(""));
+        writeGrid(c.path("fog.vdb"), fog);
+        expectRefused(c, sceneWith(R"("obstacles": [{"type": "vdb", "file": "fog.vdb"}])"), "", 2,
+                      {"scene.json: /obstacles/0", "fog.vdb", "grid 'ball': density nan at voxel [0, 0, 20]"});
+    }
+    SECTION("a fog's density") {
+        expectRefused(c, sceneWith(R"("obstacles": [{"type": "fog", "density": -1,
+                      "shape": {"type": "sphere", "center": [0, 0, 1], "radius": 0.5}}])"), "", 2,
+                      {"scene.json: /obstacles/0/density: must be >= 0, got -1"});
+    }
 }
 
 TEST_CASE("E15 non-uniform voxels", "[errors]") {

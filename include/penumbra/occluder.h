@@ -16,6 +16,7 @@
 
 #include "penumbra/level_set.h"
 #include "penumbra/math.h"
+#include "penumbra/volume.h"
 
 namespace penumbra {
 
@@ -69,10 +70,26 @@ struct Certificate {
     double radiusOthers = 0.0;
 };
 
+/// A participating medium between receivers and lights: a density grid and the extinction per
+/// unit density and length (sigma_t = extinction x density).
+struct Medium {
+    VolumeGridPtr grid;
+    double extinction = 1.0;
+};
+
 class Occluder {
 public:
     Occluder() = default;
     explicit Occluder(std::vector<ObstacleShape> shapes);
+
+    /// Media: they do not block, they attenuate (Query::transmittance). Empty or all-zero
+    /// grids are kept (for indices) but never marched.
+    void addMedium(Medium medium);
+    size_t mediumCount() const { return mMedia.size(); }
+    const Medium& medium(size_t i) const { return mMedia[i]; }
+    /// World bounds of medium i's active voxels (padded by the interpolation kernel); empty when
+    /// it can attenuate nothing.
+    const Box3& mediumBounds(size_t i) const { return mMediumBounds[i]; }
 
     void add(ObstacleShape shape);
     size_t size() const { return mShapes.size(); }
@@ -100,6 +117,8 @@ private:
     std::vector<std::shared_ptr<FarField>> mFar;  // index-aligned with mShapes; null if analytic
     std::vector<Box3> mBounds;
     double mMinVoxel = 0.0;
+    std::vector<Medium> mMedia;
+    std::vector<Box3> mMediumBounds;
 };
 
 /// Per-thread visibility query. Counts the segment queries it answers (shadow rays).
@@ -131,6 +150,27 @@ public:
     void certify(const Vec3& from, const Vec3& to, bool blocked, double tHit, double want,
                  Certificate& out);
 
+    /// Transmittance of the segment through the media, exp(-sum of extinction x integral of
+    /// density): 1 when it crosses none (then no ray is counted), else one ray. Opaque obstacles
+    /// are not looked at.
+    double transmittance(const Vec3& from, const Vec3& to);
+
+    /// What reaches `to` from `from`: 0 when an obstacle blocks the segment, else its
+    /// transmittance. One ray.
+    double transmitted(const Vec3& from, const Vec3& to);
+
+    /// Whether the media (of the restriction, if any) can attenuate some segment from a point
+    /// of `origin` to a point of `target` (their bounds overlap the segments' hull): estimators
+    /// take their volumetric path only then.
+    bool mediaBetween(const Box3& origin, const Box3& target) const;
+
+    /// The union of the bounds of the media in play (the restriction's, if any); empty if none.
+    Box3 mediaBounds() const;
+
+    /// Restricts the media the following queries march to those listed (indices into the
+    /// Occluder's media); nullptr restores every medium.
+    void restrictMediaTo(const std::vector<uint32_t>* media) { mMedia = media; }
+
     /// Restricts the following queries to the obstacles listed (indices into the Occluder), e.g.
     /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its
     /// use.
@@ -144,6 +184,7 @@ private:
     const Occluder* mOccluder;
     std::unique_ptr<Impl> mImpl;  // the per-thread OpenVDB intersectors
     const std::vector<uint32_t>* mCandidates = nullptr;
+    const std::vector<uint32_t>* mMedia = nullptr;
     uint64_t mRays = 0;
 };
 

@@ -18,6 +18,7 @@
 #include "penumbra/form_factor.h"
 #include "penumbra/math.h"
 #include "penumbra/occluder.h"
+#include "penumbra/volume.h"
 
 namespace penumbra {
 
@@ -52,6 +53,15 @@ struct Obstacle {
     double halfWidth = 0.0;
 };
 
+/// A participating medium: a density grid (a fog volume) that attenuates the light through it,
+/// sigma_t = extinction x density per unit length. `albedo` is its single-scattering albedo.
+struct Volume {
+    std::string name;
+    VolumeGridPtr grid;
+    double extinction = 1.0;
+    Rgb albedo{0.8};
+};
+
 /// What building (or reading) one obstacle's level set cost.
 struct ObstacleBuild {
     std::string name;
@@ -70,6 +80,7 @@ struct ObstacleBuild {
 /// `--verbose` output. The library does not print it; toText() and toJson() format it.
 struct BuildReport {
     std::vector<ObstacleBuild> obstacles;  ///< one per Scene::obstacles entry, same order
+    std::vector<ObstacleBuild> volumes;    ///< one per Scene::volumes entry, same order
     double seconds = 0.0;                  ///< wall time of building and reading all of them
     double estimatedBytes = 0.0;           ///< sum of the estimates
     double memoryLimitBytes = 0.0;         ///< the limit they were checked against
@@ -98,6 +109,9 @@ struct Scene {
     std::optional<Camera> camera;
     std::vector<RectLight> lights;
     std::vector<Obstacle> obstacles;
+    /// Media: "fog" obstacles and the density grids of "vdb" obstacles. They cast fractional
+    /// shadows; they are not seen by the camera and do not receive light.
+    std::vector<Volume> volumes;
     std::vector<PlaneReceiver> receivers;
     LevelSetSettings levelSet;
     Rgb background{0.0};
