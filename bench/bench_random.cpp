@@ -7,6 +7,7 @@
 //
 //   bench_random [--seeds N] [--first-seed S] [--sizes 200,800] [--threads N]
 //                [--gallery-size 200[,800] | --gallery-size 0] [--gallery-dir DIR]
+//                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--out DIR] [--save-images]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
@@ -169,6 +170,7 @@ struct Args {
     int refStride = 0;  // 0: 1 up to 400 pixels, 3 above
     std::string out = "/tmp/penumbra_random";
     std::string galleryDir;
+    std::vector<std::string> gallery{"default", "table1"};  // scene stems in galleryDir
     bool saveImages = false;
 };
 
@@ -176,7 +178,7 @@ struct Args {
     std::fprintf(stderr, "bench_random: %s\n", message.c_str());
     std::fprintf(stderr,
                  "usage: bench_random [--seeds N] [--first-seed S] [--sizes 200,800] "
-                 "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] "
+                 "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
                  "[--ref-samples N] [--ref-stride S] [--out DIR] [--save-images]\n");
     std::exit(2);
 }
@@ -218,6 +220,12 @@ Args parseArgs(int argc, char** argv) {
         else if (s == "--ref-stride") a.refStride = int(parseInt(s, next()));
         else if (s == "--out") a.out = next();
         else if (s == "--gallery-dir") a.galleryDir = next();
+        else if (s == "--gallery") {
+            a.gallery.clear();
+            std::stringstream list(next());
+            for (std::string stem; std::getline(list, stem, ',');)
+                if (!stem.empty()) a.gallery.push_back(stem);
+        }
         else if (s == "--save-images") a.saveImages = true;
         else if (s == "--help" || s == "-h") usage("seeded random scenes: ACI against Monte Carlo");
         else usage("unknown option " + s);
@@ -1229,7 +1237,7 @@ int main(int argc, char** argv) {
         }
 
         if (!args.gallerySizes.empty()) {
-            for (const std::string stem : {"default", "table1"}) {
+            for (const std::string& stem : args.gallery) {
                 const std::string path = args.galleryDir + "/" + stem + ".json";
                 std::printf("\n# gallery %s (%s)\n", stem.c_str(), path.c_str());
                 try {

@@ -221,10 +221,18 @@ VolumeGridPtr transformVolume(const VolumeGridPtr& volume, const Mat3& rotation,
         volume->grid().copyGridReplacingTransform(xform)));
 }
 
-void writeVolumes(const std::string& file, const std::vector<VolumeGridPtr>& volumes) {
+void writeGrids(const std::string& file, const std::vector<LevelSetPtr>& levelSets,
+                const std::vector<std::pair<std::string, VolumeGridPtr>>& volumes, bool halfFloat) {
     ensureOpenVdbInitialized();
     openvdb::GridCPtrVec out;
-    for (const VolumeGridPtr& v : volumes) out.push_back(v->gridPtr());
+    auto add = [&](const openvdb::GridBase& g, const std::string* name) {
+        openvdb::MetaMap meta(g);
+        if (name) meta.insertMeta(openvdb::GridBase::META_GRID_NAME, openvdb::StringMetadata(*name));
+        if (halfFloat) meta.insertMeta(openvdb::GridBase::META_SAVE_HALF_FLOAT, openvdb::BoolMetadata(true));
+        out.push_back(g.copyGridReplacingMetadata(meta));
+    };
+    for (const LevelSetPtr& ls : levelSets) add(ls->grid(), nullptr);
+    for (const auto& [name, v] : volumes) add(v->grid(), &name);
     const std::string tmp = temporaryPathFor(file);
     try {
         openvdb::io::File vdb(tmp);

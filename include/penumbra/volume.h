@@ -59,8 +59,10 @@ VdbGridKinds vdbGridKinds(const std::string& file, const std::string& where = ""
 VolumeGridPtr transformVolume(const VolumeGridPtr& volume, const Mat3& rotation, double scale,
                               const Vec3& translate);
 
-/// Writes volumes as named fog grids to a .vdb file, atomically (`penumbra bake`).
-void writeVolumes(const std::string& file, const std::vector<VolumeGridPtr>& volumes);
+/// Writes level sets and volumes (each under the name given with it) to one .vdb file,
+/// atomically (`penumbra bake`); `halfFloat` stores 16-bit values. Throws std::runtime_error.
+void writeGrids(const std::string& file, const std::vector<LevelSetPtr>& levelSets,
+                const std::vector<std::pair<std::string, VolumeGridPtr>>& volumes, bool halfFloat);
 
 /// The density at a world point (trilinear). Makes an accessor per call: for tests.
 double sampleDensity(const VolumeGrid& volume, const Vec3& pointWS);

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -14,6 +15,7 @@
 #include "penumbra/output_files.h"
 #include "penumbra/level_set.h"
 #include "penumbra/scene.h"
+#include "penumbra/volume.h"
 
 namespace penumbra::cli {
 
@@ -53,13 +55,21 @@ int runBake(const BakeOptions& o) {
     for (const auto& [path, pointer] : scene.inputFiles) {
         outputs.addInput(path, pointer + " of " + o.scene);
     }
-    if (scene.obstacles.empty()) {
+    if (scene.obstacles.empty() && scene.volumes.empty()) {
         throw InputError(o.scene, "/obstacles", "the scene has no obstacles to bake");
     }
     const std::vector<LevelSetPtr> grids = scene.obstacleLevelSets();
-    VdbWriteOptions write;
-    write.halfFloat = o.half;
-    writeLevelSets(o.output, grids, write);
+    // Volumes as fog grids under their names (made unique against the level sets' names).
+    std::set<std::string> taken;
+    for (const LevelSetPtr& g : grids) taken.insert(describe(*g).name);
+    std::vector<std::pair<std::string, VolumeGridPtr>> volumes;
+    for (size_t i = 0; i < scene.volumes.size(); ++i) {
+        std::string name = scene.volumes[i].name;
+        if (!taken.insert(name).second) name += "_fog" + std::to_string(i);
+        taken.insert(name);
+        volumes.emplace_back(name, scene.volumes[i].grid);
+    }
+    writeGrids(o.output, grids, volumes, o.half);
 
     if (o.verbose) std::cerr << scene.build.toText();
     if (!o.quiet) {
@@ -71,9 +81,16 @@ int runBake(const BakeOptions& o) {
             bytes += info.bytes;
             names += (names.empty() ? "" : ", ") + ("'" + info.name + "'");
         }
+        for (const auto& [name, v] : volumes) {
+            const VolumeInfo info = describe(*v);
+            voxels += info.activeVoxels;
+            bytes += info.bytes;
+            names += (names.empty() ? "" : ", ") + ("'" + name + "' (fog)");
+        }
+        const size_t count = grids.size() + volumes.size();
         std::printf("penumbra: wrote %s: %zu grid%s (%s), %llu active voxels, %.1f MiB in memory, "
                     "built in %.2f s\n",
-                    o.output.c_str(), grids.size(), grids.size() == 1 ? "" : "s", names.c_str(),
+                    o.output.c_str(), count, count == 1 ? "" : "s", names.c_str(),
                     static_cast<unsigned long long>(voxels), double(bytes) / (1024.0 * 1024.0),
                     scene.build.seconds);
     }
@@ -86,7 +103,8 @@ Runner addBakeCommand(CLI::App& app) {
     auto o = std::make_shared<BakeOptions>();
     CLI::App* sub = app.add_subcommand(
         "bake", "Write every obstacle's level set to a .vdb file, one grid per obstacle named "
-                "after it (analytic obstacles are voxelized at their voxel_size)");
+                "after it (analytic obstacles are voxelized at their voxel_size; fogs and other "
+                "volumes as fog grids)");
     sub->add_option("scene", o->scene, "Scene file (JSON, see docs/scene-format.md)")->required();
     sub->add_option("-o,--output", o->output, "Output .vdb file (written atomically)")->required();
     sub->add_flag("--half", o->half, "Store values as 16-bit floats (about half the file size)");
