@@ -233,6 +233,24 @@ double Occluder::Query::transmitted(const Vec3& from, const Vec3& to) {
     return t;
 }
 
+double Occluder::Query::extinctionAt(const Vec3& p, Rgb* scattering) {
+    double sigma = 0.0;
+    if (scattering) *scattering = Rgb(0.0);
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mMedia ? (*mMedia)[k] : k;
+        const Box3& b = mOccluder->mediumBounds(i);
+        if (b.empty() || p.x < b.lo.x || p.y < b.lo.y || p.z < b.lo.z || p.x > b.hi.x ||
+            p.y > b.hi.y || p.z > b.hi.z)
+            continue;
+        const Medium& m = mOccluder->medium(i);
+        const double s = m.extinction * mImpl->media[i]->density(p);
+        sigma += s;
+        if (scattering) *scattering += m.albedo * s;
+    }
+    return sigma;
+}
+
 Box3 Occluder::Query::mediaBounds() const {
     Box3 out;
     const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();

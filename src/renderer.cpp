@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <chrono>
 #include <cmath>
@@ -21,6 +22,7 @@
 #include "penumbra/camera.h"
 #include "penumbra/error.h"
 #include "penumbra/form_factor.h"
+#include "penumbra/monte_carlo.h"
 #include "surface_normal.h"
 #include "thread_sanitizer.h"
 
@@ -178,6 +180,97 @@ struct Sample {
     int grid = 0;  // first-level grid the pattern was traced on
 };
 
+// Light scattered by the media towards the camera, per unit of scattering coefficient and for an
+// isotropic phase function: S(x) = sum over lights of radiance x Omega_T(x) / (4 pi), Omega_T the
+// light's solid angle seen from x weighted by opaque visibility and transmittance, estimated
+// with `samples` stratified (Sobol-Owen) points on each light's area. Held on a lattice over the
+// media's bounds and interpolated, or computed at each point (resolution 0).
+class InScatter {
+public:
+    InScatter(const Scene& scene, const Occluder& occluder, int resolution, int samples)
+        : mScene(scene), mSamples(samples) {
+        for (size_t i = 0; i < occluder.mediumCount(); ++i) {
+            const Box3& b = occluder.mediumBounds(i);
+            if (b.empty()) continue;
+            mBounds.extend(b.lo);
+            mBounds.extend(b.hi);
+        }
+        if (mBounds.empty() || resolution <= 0) return;
+        const Vec3 size = mBounds.hi - mBounds.lo;
+        const double longest = std::max({size.x, size.y, size.z});
+        for (int k = 0; k < 3; ++k)
+            mCount[k] = std::max(2, int(std::ceil(resolution * size[k] / longest)) + 1);
+        mValues.assign(size_t(mCount[0]) * mCount[1] * mCount[2], Rgb(0.0));
+        // Every node from its own rays: the same values on any number of threads.
+        tbb::parallel_for(tbb::blocked_range<int>(0, mCount[2]), [&](const tbb::blocked_range<int>& r) {
+            Occluder::Query q = occluder.makeQuery();
+            for (int k = r.begin(); k < r.end(); ++k)
+                for (int j = 0; j < mCount[1]; ++j)
+                    for (int i = 0; i < mCount[0]; ++i)
+                        mValues[index(i, j, k)] = direct(node(i, j, k), q);
+            mRays += q.raysCast();  // (atomic)
+        });
+    }
+
+    // S at x: interpolated on the lattice, or computed with `q` without one.
+    Rgb at(const Vec3& x, Occluder::Query& q) const {
+        if (mValues.empty()) return direct(x, q);
+        Vec3 g;
+        int c[3];
+        for (int k = 0; k < 3; ++k) {
+            const double span = mBounds.hi[k] - mBounds.lo[k];
+            const double f = span > 0.0 ? (x[k] - mBounds.lo[k]) / span * (mCount[k] - 1) : 0.0;
+            c[k] = std::clamp(int(std::floor(f)), 0, mCount[k] - 2);
+            g[k] = std::clamp(f - c[k], 0.0, 1.0);
+        }
+        Rgb out(0.0);
+        for (int corner = 0; corner < 8; ++corner) {
+            const int di = corner & 1, dj = (corner >> 1) & 1, dk = corner >> 2;
+            const double w = (di ? g.x : 1.0 - g.x) * (dj ? g.y : 1.0 - g.y) * (dk ? g.z : 1.0 - g.z);
+            out += w * mValues[index(c[0] + di, c[1] + dj, c[2] + dk)];
+        }
+        return out;
+    }
+
+    const Box3& bounds() const { return mBounds; }
+    uint64_t latticeRays() const { return mRays; }
+
+private:
+    size_t index(int i, int j, int k) const {
+        return (size_t(k) * mCount[1] + j) * mCount[0] + i;
+    }
+    Vec3 node(int i, int j, int k) const {
+        const Vec3 f(double(i) / (mCount[0] - 1), double(j) / (mCount[1] - 1), double(k) / (mCount[2] - 1));
+        return mBounds.lo + f * (mBounds.hi - mBounds.lo);
+    }
+    Rgb direct(const Vec3& x, Occluder::Query& q) const {
+        Rgb s(0.0);
+        for (const RectLight& light : mScene.lights) {
+            const Vec3 n = light.normal();
+            double sum = 0.0;
+            for (int i = 0; i < mSamples; ++i) {
+                const Vec2 uv = sobolOwen2(uint32_t(i), 0x5ca77e5);
+                const Vec3 p = light.point(uv.x, uv.y);
+                const Vec3 d = p - x;
+                const double r2 = glm::dot(d, d);
+                const double cosL = -glm::dot(d, n) / std::sqrt(r2);
+                if (!(cosL > 0.0) || !(r2 > 0.0)) continue;
+                sum += q.transmitted(x, p) * cosL / r2;
+            }
+            const double omega = light.area() * sum / mSamples;
+            s += light.radiance * (omega / (4.0 * kPi));
+        }
+        return s;
+    }
+
+    const Scene& mScene;
+    int mSamples;
+    Box3 mBounds;
+    int mCount[3] = {0, 0, 0};
+    std::vector<Rgb> mValues;
+    std::atomic<uint64_t> mRays{0};
+};
+
 struct Context {
     const Scene& scene;
     const PinholeCamera& camera;
@@ -187,13 +280,49 @@ struct Context {
     double offsetFloor;              // rayOffsetFloor, for receiverRayOffset
     Image& color;
     RenderAovs& aovs;
+    const InScatter* inScatter;  // null: media not seen by the camera
 };
+
+// The camera's view through the media along a viewing ray up to `end` (the hit, or the media's
+// far side): emission-absorption with single scattering, midpoint steps of half the finest
+// voxel. Returns the scattered radiance that reaches the camera; `transmittance` is what is
+// left of the light from behind.
+Rgb marchMedia(const Context& ctx, Occluder::Query& q, const ViewRay& ray, double end,
+               double* transmittance) {
+    *transmittance = 1.0;
+    const Box3& b = ctx.inScatter->bounds();
+    const Vec3 invD(1.0 / ray.direction.x, 1.0 / ray.direction.y, 1.0 / ray.direction.z);
+    double t0 = 0.0, t1 = end;
+    if (!b.clipRay(ray.origin, invD, t0, t1) || !(t1 > t0)) return Rgb(0.0);
+    double voxel = 1e300;
+    for (size_t i = 0; i < ctx.occluder.mediumCount(); ++i)
+        if (!ctx.occluder.mediumBounds(i).empty())
+            voxel = std::min(voxel, describe(*ctx.occluder.medium(i).grid).voxelSize);
+    const int n = std::clamp(int(std::ceil((t1 - t0) / (0.5 * voxel))), 1, 1 << 14);
+    const double h = (t1 - t0) / n;
+    Rgb light(0.0);
+    double T = 1.0;
+    for (int i = 0; i < n && T > 1e-6; ++i) {
+        const Vec3 x = ray.at(t0 + (i + 0.5) * h);
+        Rgb scattering;
+        const double sigma = q.extinctionAt(x, &scattering);
+        if (!(sigma > 0.0)) continue;
+        const double step = std::exp(-sigma * h);
+        // Of the light scattered along the step, (1 - step) / sigma survives per unit sigma_s.
+        light += T * ((1.0 - step) / sigma) * scattering * ctx.inScatter->at(x, q);
+        T *= step;
+    }
+    *transmittance = T;
+    return light;
+}
 
 struct ThreadState {
     ThreadState(const Occluder& occluder, const AciSettings& aci)
-        : shadow(occluder.makeQuery()), view(occluder.makeQuery()), integrator(aci) {}
+        : shadow(occluder.makeQuery()), view(occluder.makeQuery()), volume(occluder.makeQuery()),
+          integrator(aci) {}
     Occluder::Query shadow;  // shadow rays only, so that its count is the shadow-ray count
     Occluder::Query view;    // viewing rays
+    Occluder::Query volume;  // the camera's march through media and its in-scattering rays
     ContourIntegrator integrator;
     RenderStats stats;
     std::vector<Hit> hits;
@@ -630,6 +759,17 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
         const Hit& h = ts.hits[size_t(x)];
         const PixelSum& s = ts.sums[size_t(x)];
         Rgb c = h.object >= 0 ? h.albedo * s.irradiance : ctx.scene.background;
+        if (ctx.inScatter) {
+            // The media in front of the hit (or all of them, for a miss) dim it and add their
+            // own scattered light.
+            double T = 1.0;
+            const ViewRay ray = ctx.camera.pixelRay(x, y);
+            const double end = h.object >= 0 ? h.distance : std::numeric_limits<double>::infinity();
+            const Rgb scattered = marchMedia(ctx, ts.volume, ray, end, &T);
+            c = scattered + T * c;
+            // Surfaces are opaque; where the ray meets none, the media's opacity.
+            ctx.color.at(x, y, 3) = h.object >= 0 ? 1.0f : float(1.0 - T);
+        }
         for (int k = 0; k < 3; ++k) ctx.color.at(x, y, k) = float(c[k]);
         ctx.aovs.shadowRays.at(x, y) = float(s.rays);
         ctx.aovs.formFactor.at(x, y) = float(s.formFactor);
@@ -736,17 +876,28 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                       settingsIn.width > 0 || settingsIn.height > 0 ? "" : scene.file,
                       settingsIn.width > 0 || settingsIn.height > 0 ? "--width/--height"
                                                                     : "/camera/width");
+    // Media the camera sees: their in-scattered light first (a lattice, built in parallel).
+    bool mediaSeen = false;
+    for (size_t i = 0; i < occluder.mediumCount(); ++i) mediaSeen |= !occluder.mediumBounds(i).empty();
+    mediaSeen = mediaSeen && settingsIn.volumesVisible;
+    std::unique_ptr<InScatter> inScatter;
+    if (mediaSeen) {
+        checkRange("--volume-cache", settingsIn.volumeCache, kVolumeCacheRange.lo, kVolumeCacheRange.hi);
+        checkRange("--volume-samples", settingsIn.volumeSamples, kVolumeSamplesRange.lo,
+                   kVolumeSamplesRange.hi);
+    }
     RenderResult result;
-    result.color = Image(width, height, 3);
+    result.color = Image(width, height, mediaSeen ? 4 : 3);
     result.aovs.shadowRays = Image(width, height, 1);
     result.aovs.formFactor = Image(width, height, 1);
     result.aovs.gradient = Image(width, height, 1);
     result.aovs.errorBound = Image(width, height, 1);
     result.aovs.mask = Image(width, height, 1);
-    const Context ctx{scene,          camera,
-                      occluder,       settings,
-                      offsetPerPoint, rayOffsetFloor(scene, occluder),
-                      result.color,   result.aovs};
+    // (Built inside the arena below, so that it uses the render's threads.)
+    const Context ctxTemplate{scene,          camera,
+                              occluder,       settings,
+                              offsetPerPoint, rayOffsetFloor(scene, occluder),
+                              result.color,   result.aovs, nullptr};
 
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;
@@ -754,7 +905,13 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
     const char forkKey = 0, joinKey = 0;
     detail::tsanRelease(&forkKey);
+    Context ctx = ctxTemplate;
     auto renderRows = [&] {
+        if (mediaSeen) {
+            inScatter = std::make_unique<InScatter>(scene, occluder, settings.volumeCache,
+                                                    settings.volumeSamples);
+            ctx.inScatter = inScatter.get();
+        }
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1),
                           [&](const tbb::blocked_range<int>& rows) {
                               detail::tsanAcquire(&forkKey);
@@ -787,6 +944,9 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     for (const auto& state : states) {
         if (state) stats.merge(state->stats);
     }
+    if (inScatter) stats.volumeRays = inScatter->latticeRays();
+    for (const auto& state : states)
+        if (state) stats.volumeRays += state->volume.raysCast();
     stats.method = methodName(settings.method);
     stats.width = width;
     stats.height = height;

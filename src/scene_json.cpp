@@ -1510,7 +1510,7 @@ Occluder Scene::makeOccluder() const {
     shapes.reserve(obstacles.size());
     for (const Obstacle& o : obstacles) shapes.push_back(o.shape);
     Occluder occ(std::move(shapes));
-    for (const Volume& v : volumes) occ.addMedium({v.grid, v.extinction});
+    for (const Volume& v : volumes) occ.addMedium({v.grid, v.extinction, v.albedo});
     return occ;
 }
 

@@ -52,6 +52,7 @@ std::string RenderStats::toJson() const {
     j["viewing_ray_hits"] = viewingRayHits;
     j["viewing_rays_with_shadow_rays"] = viewingRaysWithShadowRays;
     j["shadow_rays"] = shadowRays;
+    j["volume_rays"] = volumeRays;
     j["shadow_rays_per_viewing_ray"] = shadowRaysPerViewingRay();
     j["first_level_rays"] = firstLevelRays;
     j["second_level_rays"] = secondLevelRays;

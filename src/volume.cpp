@@ -274,6 +274,12 @@ VolumeSampler::VolumeSampler(const VolumeSampler& other)
     : mImpl(std::make_unique<Impl>(*other.mImpl)) {}
 VolumeSampler::~VolumeSampler() = default;
 
+double VolumeSampler::density(const Vec3& p) {
+    ++mSamples;
+    return openvdb::tools::BoxSampler::sample(
+        mImpl->accessor, mImpl->volume->grid().worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
+}
+
 double VolumeSampler::opticalDepth(const Vec3& from, const Vec3& dir, double t0, double t1) {
     if (!mImpl->intersector || !(t1 > t0)) return 0.0;
     const FloatGrid& grid = mImpl->volume->grid();

@@ -13,6 +13,7 @@
 #include <random>
 #include <string>
 
+#include "penumbra/camera.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/estimator.h"
 #include "penumbra/monte_carlo.h"
@@ -185,8 +186,14 @@ TEST_CASE("a zero-density fog changes nothing and a fog outside every shaft cost
     RenderSettings s;
     s.threads = 2;
     const RenderResult a = render(plain, s), b = render(zero, s), c = render(away, s);
-    CHECK(b.color.data == a.color.data);
-    CHECK(c.color.data == a.color.data);
+    CHECK(b.color.data == a.color.data);  // no medium to see: no alpha channel either
+    // The camera sees the far fog (an alpha channel) but no pixel looks through it.
+    REQUIRE(c.color.channels == 4);
+    for (int y = 0; y < a.color.height; ++y)
+        for (int x = 0; x < a.color.width; ++x) {
+            for (int k = 0; k < 3; ++k) REQUIRE(c.color.at(x, y, k) == a.color.at(x, y, k));
+            REQUIRE(c.color.at(x, y, 3) == 1.0f);  // every pixel sees the plane
+        }
     CHECK(b.stats.shadowRays == a.stats.shadowRays);
     CHECK(c.stats.shadowRays == a.stats.shadowRays);
     // Probe-style too: the zero-density fog gives the unoccluded answer exactly.
@@ -271,4 +278,72 @@ TEST_CASE("real density files: vdb_tool's fog and a grid with its own voxels and
         const double d2 = -std::log(q.transmittance(centre - 0.3 * diag, centre + 0.3 * diag));
         CHECK(d2 == Approx(0.8 * 0.6).epsilon(0.01));
     }
+}
+
+TEST_CASE("the camera sees volumes: what lies behind is dimmed, alpha is the opacity",
+          "[volume][camera]") {
+    // A vertical fog slab 0.2 thick (y in [-4.6, -4.4]) between the camera (y = -5) and the
+    // plane, far from every shaft between the plane and the light; albedo 0: it only absorbs.
+    const std::string slab = R"({"type": "fog", "density": 2, "extinction": 1.5,
+        "albedo": [0, 0, 0],
+        "shape": {"type": "box", "center": [0, -4.5, 2], "size": [12, 0.2, 6]}})";
+    const std::string sphere = R"({"type": "sphere", "center": [0, 0, 1.2], "radius": 0.5})";
+    const Scene with = parseScene(sceneWith(sphere + ", " + slab, 0.02), "slab.json", ".");
+    const Scene without = parseScene(sceneWith(sphere, 0.02), "plain.json", ".");
+    RenderSettings s;
+    s.threads = 2;
+    const RenderResult a = render(without, s), b = render(with, s);
+    REQUIRE(b.color.channels == 4);
+    const PinholeCamera cam(*with.camera, "slab.json");
+    const double sigma = 2.0 * 1.5;
+    int checked = 0;
+    for (int y = 0; y < b.color.height; y += 3)
+        for (int x = 0; x < b.color.width; x += 3) {
+            const ViewRay ray = cam.pixelRay(x, y);
+            // Beer-Lambert along the ray's path through the slab: 0.2 / |dy|.
+            const double expected = std::exp(-sigma * 0.2 / std::abs(ray.direction.y));
+            for (int k = 0; k < 3; ++k) {
+                CAPTURE(x, y, k, expected);
+                CHECK(b.color.at(x, y, k) == Approx(expected * a.color.at(x, y, k)).epsilon(0.01).margin(1e-6));
+            }
+            CHECK(b.color.at(x, y, 3) == 1.0f);  // the plane behind is opaque
+            ++checked;
+        }
+    CHECK(checked > 50);
+}
+
+TEST_CASE("a lit cloud: alpha over the background, and the in-scattering lattice against "
+          "computing it at every sample", "[volume][camera]") {
+    // A cloud in front of an empty background (no receiver), lit from above.
+    const std::string scene = R"({"camera": {"eye": [0, -4, 2], "look_at": [0, 0, 2],
+        "width": 24, "height": 24},
+      "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0], "radiance": [6, 6, 6]}],
+      "obstacles": [{"type": "fog", "density": 3, "falloff": 0.2,
+                     "shape": {"type": "sphere", "center": [0, 0, 2], "radius": 0.6}}],
+      "level_set": {"voxel_size": 0.04}})";
+    const Scene cloud = parseScene(scene, "cloud.json", ".");
+    RenderSettings s;
+    s.threads = 2;
+    s.volumeSamples = 32;
+    const RenderResult cached = render(cloud, s);
+    s.volumeCache = 0;
+    const RenderResult direct = render(cloud, s);
+    const Occluder occ = cloud.makeOccluder();
+    Occluder::Query q = occ.makeQuery();
+    const PinholeCamera cam(*cloud.camera, "cloud.json");
+    double diff = 0.0, peak = 0.0;
+    for (int y = 0; y < 24; ++y)
+        for (int x = 0; x < 24; ++x) {
+            // Alpha is 1 - T along the viewing ray through the whole cloud.
+            const ViewRay ray = cam.pixelRay(x, y);
+            const double T = q.transmittance(ray.origin, ray.at(8.0));
+            CHECK(cached.color.at(x, y, 3) == Approx(1.0 - T).margin(0.01));
+            peak = std::max(peak, double(direct.color.at(x, y, 0)));
+            diff += std::abs(cached.color.at(x, y, 0) - direct.color.at(x, y, 0));
+        }
+    const double mean = diff / (24 * 24);
+    WARN("in-scattering lattice (24 nodes) against every sample: mean difference "
+         << mean << " (peak value " << peak << ")");
+    REQUIRE(peak > 0.05);  // the cloud is lit
+    CHECK(mean < 0.01 * peak);
 }

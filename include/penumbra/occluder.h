@@ -75,6 +75,7 @@ struct Certificate {
 struct Medium {
     VolumeGridPtr grid;
     double extinction = 1.0;
+    Rgb albedo{0.8};  ///< single-scattering albedo: sigma_s = albedo x sigma_t
 };
 
 class Occluder {
@@ -163,6 +164,10 @@ public:
     /// of `origin` to a point of `target` (their bounds overlap the segments' hull): estimators
     /// take their volumetric path only then.
     bool mediaBetween(const Box3& origin, const Box3& target) const;
+
+    /// The extinction (sigma_t, summed over the media in play) and scattering (sigma_s, per
+    /// channel) coefficients at a world point: what the camera's march through media needs.
+    double extinctionAt(const Vec3& p, Rgb* scattering = nullptr);
 
     /// The union of the bounds of the media in play (the restriction's, if any); empty if none.
     Box3 mediaBounds() const;

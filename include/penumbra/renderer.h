@@ -76,7 +76,21 @@ struct RenderSettings {
         s.samples = 0;
         return s;
     }();
+    /// Volumes seen by the camera (docs/volumes.md): viewing rays march through the media,
+    /// attenuating what lies behind and adding the light they scatter; the image gets an alpha
+    /// channel (the media's opacity along the ray). Off: media only cast shadows.
+    bool volumesVisible = true;
+    /// In-scattered light is computed on a lattice of this many nodes along the media's longest
+    /// extent (trilinear between nodes); 0: at every sample of every viewing ray (slow; for
+    /// measuring the lattice's error).
+    int volumeCache = 24;
+    /// Rays per in-scattering estimate (stratified over each light's area).
+    int volumeSamples = 64;
 };
+
+/// The accepted range of RenderSettings::volumeCache (0: no lattice) and volumeSamples.
+constexpr IntRange kVolumeCacheRange{0, 256};
+constexpr IntRange kVolumeSamplesRange{1, 65536};
 
 /// Extra images (AOVs), one channel each, same size as the picture.
 struct RenderAovs {

@@ -31,6 +31,9 @@ struct RenderStats {
     uint64_t viewingRayHits = 0;             ///< viewing rays that hit a receiver or obstacle
     uint64_t viewingRaysWithShadowRays = 0;  ///< pixels at which at least one shadow ray was cast
     uint64_t shadowRays = 0;                 ///< every shadow ray (first and second level)
+    /// Rays for the light the media scatter towards the camera (their in-scattering lattice and
+    /// samples); not counted in shadowRays.
+    uint64_t volumeRays = 0;
     uint64_t firstLevelRays = 0;             ///< of which first-level rays (ACI and patterns)
     uint64_t secondLevelRays = 0;            ///< of which second-level rays (dichotomies, checks)
     uint64_t cacheHits = 0;                  ///< lattice samples reused inside ACI evaluations

@@ -80,6 +80,8 @@ public:
 
     /// Integral of density along from + t dir, t in [t0, t1] (`dir` a unit vector).
     double opticalDepth(const Vec3& from, const Vec3& dir, double t0, double t1);
+    /// The trilinear density at a world point.
+    double density(const Vec3& p);
     /// Density samples taken so far (the cost measure).
     uint64_t samples() const { return mSamples; }
 

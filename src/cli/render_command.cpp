@@ -43,6 +43,9 @@ struct RenderOptions {
     uint64_t seed = 0;
     std::string stats;
     std::string cache;  // level-set cache directory ("" none)
+    int volumeCache = 24;
+    int volumeSamples = 64;
+    bool hideVolumes = false;
     std::string aovRays, aovFormFactor, aovGradient, aovMask, aovErrorBound;
     bool quiet = false;
     bool verbose = false;
@@ -209,6 +212,11 @@ int runRender(const RenderOptions& o) {
     settings.aci.gradient = !o.aovGradient.empty();
     settings.aci.errorBound = !o.aovErrorBound.empty();
     settings.maxSpan = o.maxSpan;
+    requireRange("--volume-cache", o.volumeCache, kVolumeCacheRange.lo, kVolumeCacheRange.hi);
+    requireRange("--volume-samples", o.volumeSamples, kVolumeSamplesRange.lo, kVolumeSamplesRange.hi);
+    settings.volumeCache = o.volumeCache;
+    settings.volumeSamples = o.volumeSamples;
+    settings.volumesVisible = !o.hideVolumes;
     settings.mc.samples = o.samples;
     settings.mc.threshold = o.mcThreshold;
     settings.mc.maxDepth = o.mcMaxDepth;
@@ -344,6 +352,15 @@ Runner addRenderCommand(CLI::App& app) {
         ->capture_default_str();
     cmd->add_option("--max-span", o->maxSpan, "Longest span of pixels shaded together")
         ->capture_default_str();
+    cmd->add_option("--volume-cache", o->volumeCache,
+                    "Volumes seen by the camera: nodes of the in-scattering lattice along the "
+                    "media's longest extent (0: compute it at every sample, slow)")
+        ->capture_default_str();
+    cmd->add_option("--volume-samples", o->volumeSamples,
+                    "Volumes seen by the camera: rays per in-scattering estimate, per light")
+        ->capture_default_str();
+    cmd->add_flag("--hide-volumes", o->hideVolumes,
+                  "Volumes cast shadows but the camera does not see them (no alpha channel)");
     cmd->add_option("--samples", o->samples,
                     "Monte Carlo methods: shadow rays per estimate (mc-adaptive: at most); "
                     "default 1024 for reference and mc-adaptive, 16 for mc-solid-angle and "
