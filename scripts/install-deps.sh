@@ -4,7 +4,9 @@
 set -euo pipefail
 packages=(build-essential cmake libopenvdb-dev libboost-iostreams-dev libopenimageio-dev
           libtbb-dev libglm-dev catch2 libcli11-dev nlohmann-json3-dev libopenvdb-tools
-          openimageio-tools gnuplot-nox)
+          openimageio-tools gnuplot-nox
+          python3-dev pybind11-dev python3-pybind11 python3-numpy python3-pytest
+          python3-openimageio)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
