@@ -30,6 +30,25 @@
 
 namespace penumbra {
 
+void writeVdbAtomically(const std::string& file, const openvdb::GridCPtrVec& grids,
+                        const openvdb::MetaMap& fileMetadata) {
+    // Write beside the target and rename, so a reader never sees a half-written file. The
+    // temporary name is unique per process and call, so concurrent writers do not collide.
+    const std::string tmp = temporaryPathFor(file);
+    try {
+        openvdb::io::File vdb(tmp);
+        vdb.write(grids, fileMetadata);
+        vdb.close();
+    } catch (const std::exception& e) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot write VDB file: " + e.what());
+    }
+    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
+    }
+}
+
 void ensureOpenVdbInitialized() {
     // openvdb::initialize() registers grid and map types, which file I/O needs; calling it from
     // several threads at once is not documented as safe, hence call_once.
@@ -414,21 +433,7 @@ void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& gri
         meta.insertMeta(openvdb::GridBase::META_SAVE_HALF_FLOAT, openvdb::BoolMetadata(true));
         out.push_back(ls->grid().copyGridReplacingMetadata(meta));
     }
-    // Write beside the target and rename, so a reader never sees a half-written file. The
-    // temporary name is unique per process and call, so concurrent writers do not collide.
-    const std::string tmp = temporaryPathFor(file);
-    try {
-        openvdb::io::File vdb(tmp);
-        vdb.write(out);
-        vdb.close();
-    } catch (const std::exception& e) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot write VDB file: " + e.what());
-    }
-    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
-    }
+    writeVdbAtomically(file, out);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -480,19 +485,7 @@ void writeCacheFile(const std::string& file, const std::string& key, const Cache
     fileMeta.insertMeta("penumbra_key", openvdb::StringMetadata(key));
     fileMeta.insertMeta("penumbra_far_factor", openvdb::DoubleMetadata(kFarFieldFactor));
     fileMeta.insertMeta("penumbra_far_band", openvdb::FloatMetadata(kFarFieldBand));
-    const std::string tmp = temporaryPathFor(file);
-    try {
-        openvdb::io::File vdb(tmp);
-        vdb.write(grids, fileMeta);
-        vdb.close();
-    } catch (const std::exception& e) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot write the cache file: " + e.what());
-    }
-    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
-    }
+    writeVdbAtomically(file, grids, fileMeta);
 }
 
 CacheFileEntry readCacheFile(const std::string& file, const std::string& key) {

@@ -12,6 +12,7 @@
 #include <atomic>
 #include <memory>
 #include <mutex>
+#include <string>
 
 #include "penumbra/level_set.h"
 #include "penumbra/math.h"
@@ -53,6 +54,11 @@ class LevelSet {
     Box3 mBoundsWS;
     double mVoxelSize = 0.0;
 };
+
+/// Writes grids (and file metadata) to `file` under a temporary name, then renames it: readers
+/// never see a half-written file. Throws std::runtime_error naming the file.
+void writeVdbAtomically(const std::string& file, const openvdb::GridCPtrVec& grids,
+                        const openvdb::MetaMap& fileMetadata = openvdb::MetaMap());
 
 /// openvdb::initialize(), once per process, thread-safe.
 void ensureOpenVdbInitialized();

@@ -233,19 +233,7 @@ void writeGrids(const std::string& file, const std::vector<LevelSetPtr>& levelSe
     };
     for (const LevelSetPtr& ls : levelSets) add(ls->grid(), nullptr);
     for (const auto& [name, v] : volumes) add(v->grid(), &name);
-    const std::string tmp = temporaryPathFor(file);
-    try {
-        openvdb::io::File vdb(tmp);
-        vdb.write(out);
-        vdb.close();
-    } catch (const std::exception& e) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot write VDB file: " + e.what());
-    }
-    if (std::rename(tmp.c_str(), file.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(file + ": cannot rename " + tmp + " to the target");
-    }
+    writeVdbAtomically(file, out);
 }
 
 double sampleDensity(const VolumeGrid& volume, const Vec3& p) {
