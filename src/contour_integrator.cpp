@@ -34,25 +34,31 @@ struct Vertex {
     int obstacle = -1;  // tangentContour: the obstacle whose silhouette it is on (-1 unknown)
 };
 
+// Fills what a ray's clearance `c` tells the tangent mode: the angular clearance and, in
+// `tangent`, the distance gradient, the closest approach's fraction and the obstacle.
+void recordClearance(const Clearance& c, double len, float& clear, float* tangent) {
+    const bool known = c.known() && c.at > 0.0;
+    clear = known ? static_cast<float>(c.distance / c.at) : std::numeric_limits<float>::quiet_NaN();
+    for (int k = 0; k < 3; ++k) tangent[k] = known ? float(c.normal[k]) : 0.0f;
+    tangent[3] = known ? static_cast<float>(c.at / len) : 0.0f;
+    tangent[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
+    tangent[5] = 0.0f;
+}
+
 // Traces one shadow ray from `origin` to `target` and records what it tells: the lattice's
 // sample value, the angular clearance and, in tangent mode, the gradient data and bound.
+// `measure`: whether to measure the clearance now (else the caller does it when needed).
 ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
-                                   const AciSettings& settings, double want) {
+                                   const AciSettings& settings, double want, bool measure) {
     ContourIntegrator::Corner out;
     out.origin = origin;
-    out.clear = std::numeric_limits<float>::quiet_NaN();
     double tHit = 0.0;
     Clearance c;
-    const bool hidden = query.occluded(origin, target, &tHit, settings.distanceGuided ? &c : nullptr);
-    const double len = glm::length(target - origin);
-    const bool known = c.known() && c.at > 0.0;
-    if (known) out.clear = static_cast<float>(c.distance / c.at);
-    for (int k = 0; k < 3; ++k) out.tangent[k] = known ? float(c.normal[k]) : 0.0f;
-    out.tangent[3] = known ? static_cast<float>(c.at / len) : 0.0f;
-    out.tangent[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
-    out.tangent[5] = 0.0f;
+    const bool hidden = query.occluded(origin, target, &tHit, measure ? &c : nullptr);
+    recordClearance(c, glm::length(target - origin), out.clear, out.tangent);
     out.bound = c.bound;
-    out.sample = hidden ? static_cast<float>(std::clamp(tHit / len, 0.01, 1.0)) : kVisible;
+    out.sample = hidden ? static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0))
+                        : kVisible;
     if (settings.coverage && want > 0.0) query.certify(origin, target, hidden, tHit, want, out.cert);
     return out;
 }
@@ -114,6 +120,7 @@ struct ContourIntegrator::Lattice {
             self.mStamp.assign(size, 0);
             self.mSample.assign(size, 0.0f);
             self.mClear.assign(size, 0.0f);
+            self.mPending.assign(size, 0);
             self.mGeneration = 0;
         }
         if (s.mSettings.tangentContour && self.mNormal.size() < kTangentFloats * size) {
@@ -138,6 +145,7 @@ struct ContourIntegrator::Lattice {
             return s;
         }
         self.mStamp[idx] = self.mGeneration;
+        self.mPending[idx] = 0;
         if (self.mSettings.coverage) self.mAllTraced.push_back(static_cast<uint32_t>(idx));
         const Vec3 target = pointOf(q);
         float& clear = self.mClear[idx];
@@ -164,8 +172,14 @@ struct ContourIntegrator::Lattice {
             if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
             // Certificates on the rays whose discs cover ground: first-level corners and
             // coverage rays (dichotomy rays lie next to the contour, where discs are tiny).
+            // With coverage (no corner reuse, which needs every ray's bound) the clearance is
+            // measured only for the rays the tangent construction asks about (settle()):
+            // coverage rays far from any contour never need it.
+            const bool lazy = self.mSettings.distanceGuided && self.mSettings.coverage && !kept;
             ray = traceRay(query, origin, target, self.mSettings,
-                           firstLevel || certifyNext ? want : 0.0);
+                           firstLevel || certifyNext ? want : 0.0,
+                           self.mSettings.distanceGuided && !lazy);
+            self.mPending[idx] = lazy;
             if (kept) *kept = ray;
         }
         clear = ray.clear;
@@ -184,27 +198,37 @@ struct ContourIntegrator::Lattice {
     float peek(LatticePoint q) const {
         return self.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
     }
-    float clearanceOf(LatticePoint q) const {
-        return self.mClear[static_cast<size_t>(q.b) * (N + 1) + q.a];
+    // The index of traced sample q, its clearance measured now if it was left for later
+    // (sample()'s lazy rays): the same march, the same values, not counted as another ray.
+    size_t settle(LatticePoint q) const {
+        const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
+        if (self.mPending[idx] && self.mStamp[idx] == self.mGeneration) {
+            self.mPending[idx] = 0;
+            const Vec3 target = pointOf(q);
+            const Clearance c = query.clearance(origin, target, self.mSample[idx] != kVisible);
+            float* tangent = self.mSettings.tangentContour ? &self.mNormal[kTangentFloats * idx] : nullptr;
+            float scratch[kTangentFloats];
+            recordClearance(c, glm::length(target - origin), self.mClear[idx], tangent ? tangent : scratch);
+        }
+        return idx;
     }
+    float clearanceOf(LatticePoint q) const { return self.mClear[settle(q)]; }
 
     Vec3 normalOf(LatticePoint q) const {
-        const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
-        const float* t = &self.mNormal[kTangentFloats * idx];
+        const float* t = &self.mNormal[kTangentFloats * settle(q)];
         return Vec3(t[0], t[1], t[2]);
     }
     // Where q's ray passes closest to the surface, as a fraction of the ray (0 unknown).
     double closestFractionOf(LatticePoint q) const {
-        return self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 3];
+        return self.mNormal[kTangentFloats * settle(q) + 3];
     }
     // Whether q was answered by an earlier receiver point's ray (its distances approximate).
     bool staleOf(LatticePoint q) const {
-        return self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 5] != 0.0f;
+        return self.mNormal[kTangentFloats * settle(q) + 5] != 0.0f;
     }
     // The obstacle q's clearance was measured to (-1 unknown).
     int obstacleOf(LatticePoint q) const {
-        return static_cast<int>(
-            self.mNormal[kTangentFloats * (static_cast<size_t>(q.b) * (N + 1) + q.a) + 4]);
+        return static_cast<int>(self.mNormal[kTangentFloats * settle(q) + 4]);
     }
 
     // tangentContour: where the contour crosses the line X(t) = from + t dir (world, on the
@@ -1215,7 +1239,7 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
                 ++counts.reusedRays;
             } else {
                 ++counts.firstLevelRays;
-                *kept = traceRay(query, origin, target, mSettings, 0.0);
+                *kept = traceRay(query, origin, target, mSettings, 0.0, mSettings.distanceGuided);
             }
             o = kept->sample == kVisible;
         }

@@ -436,6 +436,17 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
 bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                                Clearance* clearance) {
     ++mRays;
+    return trace(from, to, tHit, clearance, -1);
+}
+
+Clearance Occluder::Query::clearance(const Vec3& from, const Vec3& to, bool blocked) {
+    Clearance c;
+    trace(from, to, nullptr, &c, blocked ? 1 : 0);
+    return c;
+}
+
+bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,
+                            int known) {
     if (clearance) *clearance = Clearance{};
     // The nearest obstacle whose distance is unknown is at least this far (its band): the
     // smallest known distance is the segment's clearance when it is below that.
@@ -508,6 +519,7 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
                 }
             }
         }
+        if (known >= 0) continue;  // the answer is known: only the clearance is wanted
         double t0 = tMin, t1 = tMax;
         if (!bounds.clipRay(from, invDir, t0, t1)) continue;
 
@@ -551,10 +563,13 @@ bool Occluder::Query::occluded(const Vec3& from, const Vec3& to, double* tHit,
         hit = true;
         if (t < best) {
             best = t;
-            if (best <= 0.0) break;  // nothing can be nearer than the start
+            // Nothing can be nearer than the start (with a clearance wanted, the other
+            // obstacles are still measured, as when the answer is known beforehand).
+            if (best <= 0.0 && !clearance) break;
             tMax = std::max(tMin, std::min(tMax, t));
         }
     }
+    if (known >= 0) hit = known == 1;
     if (hit && tHit) *tHit = best;
     if (clearance) {
         // Unblocked: every obstacle must be provably away. Blocked: one provably deep is enough.

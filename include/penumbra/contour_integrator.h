@@ -157,6 +157,7 @@ private:
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
+    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet
     std::vector<float> mNormal;    // tangentContour: x, y, z of the distance gradient at the
                                    // ray's closest approach (0 unknown)
     std::vector<Certificate> mCert;  // coverage: each sample's certificate

@@ -142,6 +142,11 @@ public:
     /// sphere-traced along the segment for it, which costs about one more march.
     bool occluded(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance);
 
+    /// The clearance occluded() returns with the answer `blocked` it gave for this segment,
+    /// measured after the fact by callers that need it for some segments only: the same
+    /// values, without the intersection march. Not counted as another shadow ray.
+    Clearance clearance(const Vec3& from, const Vec3& to, bool blocked);
+
     /// The certificate of the segment from `from` to `to`, whose answer `blocked` (and, when
     /// blocked, the distance `tHit` from `from` to the first hit) the caller has just obtained
     /// from occluded(). Radii are computed up to `want` (a larger radius is reported as `want`):
@@ -185,6 +190,10 @@ public:
     void resetCount() { mRays = 0; }
 
 private:
+    // occluded() with `known` < 0; with known = 0 or 1 the answer is taken as given and only
+    // the clearance is measured.
+    bool trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance, int known);
+
     struct Impl;
     const Occluder* mOccluder;
     std::unique_ptr<Impl> mImpl;  // the per-thread OpenVDB intersectors
