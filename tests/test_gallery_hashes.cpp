@@ -1,0 +1,76 @@
+// The gallery keeps its images: every scene of vdb_scenes/ rendered small by the real program,
+// in the default mode and in the paper's, must give the image it gave when the table below was
+// written. Refactoring must not change a pixel; a change of behaviour that is meant updates the
+// table (the failure message prints the new hash) and says why in its commit.
+//
+// Hashes are over the EXR's pixels quantized to 1/4096 (so that a last-bit difference in a
+// library function on another CPU cannot flip them, while any real change does), FNV-1a 64.
+
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <cstring>
+#include <string>
+
+#include "penumbra/hash.h"
+#include "penumbra/image_io.h"
+#include "support/cli.h"
+
+namespace {
+
+std::string imageHash(const penumbra::Image& image) {
+    uint64_t h = penumbra::kFnvOffset;
+    const std::string dims = std::to_string(image.width) + "x" + std::to_string(image.height) +
+                             "x" + std::to_string(image.channels);
+    h = penumbra::fnv1a64(dims, h);
+    for (float v : image.data) {
+        const long long q = std::llround(double(v) * 4096.0);
+        char bytes[sizeof q];
+        std::memcpy(bytes, &q, sizeof q);
+        h = penumbra::fnv1a64(std::string_view(bytes, sizeof bytes), h);
+    }
+    return penumbra::hex16(h);
+}
+
+struct GalleryCase {
+    const char* scene;
+    const char* options;
+    const char* hash;
+};
+
+// Written 2026-11-27 at commit 9a01025 (whose images equal the commit before's). 40 x 40, two
+// threads.
+const GalleryCase kCases[] = {
+    {"default", "", "1c74748f34ebb39f"},
+    {"default", "--aci-mode paper", "51cf2532df25c8c0"},
+    {"default", "--aci-mode arcs", "60cb8adf23369065"},
+    {"default", "--method mc-solid-angle --samples 64", "ada0047fc61d99f7"},
+    {"table1", "", "2967a0105ba1fbc0"},
+    {"table1", "--aci-mode paper", "3a42e2cdc80eed9f"},
+    {"csg", "", "99305a651e3b461c"},
+    {"vdb_tool", "", "1b903dd660be5ea5"},
+    {"bunny", "", "04b07356ce6622d2"},
+    {"fog", "", "25d734903e968c1f"},
+};
+
+}  // namespace
+
+TEST_CASE("gallery scenes render the images of the hash table", "[gallery][slow]") {
+    test::TempDir dir("gallery", "hashes");
+    const std::string scenes = std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/";
+    for (const GalleryCase& c : kCases) {
+        const std::string name = std::string(c.scene) + (*c.options ? " " + std::string(c.options) : "");
+        SECTION(name) {
+            const std::string out = (dir.path / "image.exr").string();
+            const test::Run run = test::runPenumbra("render '" + scenes + c.scene + ".json' -o '" +
+                                                        out + "' --width 40 --height 40 --threads 2 " +
+                                                        c.options,
+                                                    dir.path);
+            INFO(run.err);
+            REQUIRE(run.exitCode == 0);
+            const std::string hash = imageHash(penumbra::readImage(out));
+            INFO("scene " << name << ": hash " << hash << " (table: " << c.hash << ")");
+            CHECK(hash == c.hash);
+        }
+    }
+}
