@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.h"
 #include "penumbra/batch.h"
 #include "penumbra/error.h"
 
@@ -33,40 +34,21 @@ namespace fs = std::filesystem;
 namespace {
 
 struct Args {
+    std::string penumbra;  // the program, for the process rows; none: in-process rows only
+    std::string keep;      // where to keep the jobs' files; none: a temporary, removed
     int jobs = 16;
     int size = 96;
     int threads = 2;
     double voxel = 0.02;
-    std::string penumbra;
-    std::string keep;
 };
 
 Args parseArgs(int argc, char** argv) {
     Args a;
-    for (int i = 1; i < argc; ++i) {
-        const std::string s = argv[i];
-        auto next = [&]() -> std::string {
-            if (i + 1 >= argc) {
-                std::fprintf(stderr, "bench_batch: %s needs a value\n", s.c_str());
-                std::exit(2);
-            }
-            return argv[++i];
-        };
-        if (s == "--jobs") a.jobs = std::atoi(next().c_str());
-        else if (s == "--size") a.size = std::atoi(next().c_str());
-        else if (s == "--threads") a.threads = std::atoi(next().c_str());
-        else if (s == "--voxel") a.voxel = std::atof(next().c_str());
-        else if (s == "--penumbra") a.penumbra = next();
-        else if (s == "--keep") a.keep = next();
-        else {
-            std::fprintf(stderr, "bench_batch: unknown option %s\n", s.c_str());
-            std::exit(2);
-        }
-    }
-    if (a.jobs < 1 || a.size < 1 || a.threads < 1 || !(a.voxel > 0.0)) {
-        std::fprintf(stderr, "bench_batch: --jobs, --size, --threads, --voxel must be > 0\n");
-        std::exit(2);
-    }
+    bench::parseOptions("bench_batch", argc, argv,
+                        {{"--jobs", &a.jobs}, {"--size", &a.size}, {"--threads", &a.threads},
+                         {"--voxel", &a.voxel}, {"--penumbra", &a.penumbra}, {"--keep", &a.keep}});
+    if (a.jobs < 1 || a.size < 1 || a.threads < 1 || !(a.voxel > 0.0))
+        bench::failUsage("bench_batch", "--jobs, --size, --threads, --voxel must be > 0");
     return a;
 }
 

@@ -144,6 +144,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_common.h"
 #include "penumbra/camera.h"
 #include "penumbra/compare.h"
 #include "penumbra/contour_integrator.h"
@@ -792,14 +793,7 @@ struct Context {
     std::vector<std::string> failures;
 };
 
-RenderSettings baseSettings(Method m, int size, int threads) {
-    RenderSettings rs;
-    rs.method = m;
-    rs.width = size;
-    rs.height = size;
-    rs.threads = threads;
-    return rs;
-}
+using bench::squareSettings;
 
 // One scene at one size: every method, its rows printed as they come.
 void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
@@ -870,7 +864,7 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
 
     // Reference.
     progress("reference");
-    RenderSettings refSettings = baseSettings(Method::Reference, smp.count, args.threads);
+    RenderSettings refSettings = squareSettings(Method::Reference, smp.count, args.threads);
     refSettings.mc.samples = args.refSamples;
     refSettings.mc.seed = 0x5eed;
     const RenderResult ref = render(refScene, refSettings);
@@ -901,7 +895,7 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
 
     // ACI at default settings: its mask and the reference's are the compared pixels.
     progress("aci");
-    const RenderResult aci = render(scene, baseSettings(Method::Aci, size, args.threads));
+    const RenderResult aci = render(scene, squareSettings(Method::Aci, size, args.threads));
     cmp.mask = ref.aovs.mask;
     {
         const Image aciMask = sample(aci.aovs.mask, smp);
@@ -927,7 +921,8 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
     const double aciSeconds = aci.stats.seconds;
     // ACI's fixed cost (mostly building the level sets' far-field distance companions, which
     // every render of the tangent mode does): the same render at 16 x 16 pixels.
-    const double aciSetup = render(scene, baseSettings(Method::Aci, 16, args.threads)).stats.seconds;
+    const double aciSetup =
+        render(scene, squareSettings(Method::Aci, 16, args.threads)).stats.seconds;
 
     // mc-solid-angle at ACI's time.
     progress("mc-solid-angle at aci's time");
@@ -944,7 +939,7 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
         for (const Try& t : tries) {
             if (t.samples == n) return false;  // already measured
         }
-        RenderSettings rs = baseSettings(Method::McSolidAngle, size, args.threads);
+        RenderSettings rs = squareSettings(Method::McSolidAngle, size, args.threads);
         rs.mc.samples = n;
         RenderResult r = render(scene, rs);
         tries.push_back({n, r.stats.seconds});
@@ -989,10 +984,10 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
 
     // The paper's estimator and the arcs mode.
     progress("aci paper, arcs");
-    RenderSettings paperSettings = baseSettings(Method::Aci, size, args.threads);
+    RenderSettings paperSettings = squareSettings(Method::Aci, size, args.threads);
     applyAciMode(paperSettings.aci, AciMode::Paper);
     const RenderResult paper = render(scene, paperSettings);
-    RenderSettings arcsSettings = baseSettings(Method::Aci, size, args.threads);
+    RenderSettings arcsSettings = squareSettings(Method::Aci, size, args.threads);
     applyAciMode(arcsSettings.aci, AciMode::Arcs);
     const RenderResult arcs = render(scene, arcsSettings);
 
@@ -1256,12 +1251,8 @@ int main(int argc, char** argv) {
         const double total =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         std::printf("\ntotal wall time %.1f s\n", total);
-    } catch (const InputError& e) {
-        std::fprintf(stderr, "bench_random: %s\n", e.what());
-        return 2;
-    } catch (const std::exception& e) {
-        std::fprintf(stderr, "bench_random: %s\n", e.what());
-        return 1;
+    } catch (...) {
+        return bench::reportException("bench_random");
     }
     return 0;
 }

@@ -16,6 +16,7 @@
 #include <cstdlib>
 #include <string>
 
+#include "bench_common.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
 #include "penumbra/contour_integrator.h"
@@ -37,30 +38,15 @@ struct Args {
 
 Args parseArgs(int argc, char** argv) {
     Args a;
-    for (int i = 1; i < argc; ++i) {
-        std::string s = argv[i];
-        auto next = [&]() -> std::string {
-            if (i + 1 >= argc) {
-                std::fprintf(stderr, "bench_render: %s needs a value\n", s.c_str());
-                std::exit(2);
-            }
-            return argv[++i];
-        };
-        if (s == "--size") a.size = std::atoi(next().c_str());
-        else if (s == "--threads") a.threads = std::atoi(next().c_str());
-        else if (s == "--radiance-scale") a.radianceScale = std::atof(next().c_str());
-        else if (s == "--out") a.out = next();
-        else if (s == "--aci-mode") a.aciMode = next();
-        else if (!s.empty() && s[0] != '-') a.scene = s;
-        else {
-            std::fprintf(stderr, "bench_render: unknown option %s\n", s.c_str());
-            std::exit(2);
-        }
-    }
-    if (a.size < 1 || a.threads < 1 || !(a.radianceScale > 0.0)) {
-        std::fprintf(stderr, "bench_render: --size, --threads, --radiance-scale must be > 0\n");
-        std::exit(2);
-    }
+    bench::parseOptions("bench_render", argc, argv,
+                        {{"--size", &a.size},
+                         {"--threads", &a.threads},
+                         {"--radiance-scale", &a.radianceScale},
+                         {"--out", &a.out},
+                         {"--aci-mode", &a.aciMode}},
+                        &a.scene);
+    if (a.size < 1 || a.threads < 1 || !(a.radianceScale > 0.0))
+        bench::failUsage("bench_render", "--size, --threads, --radiance-scale must be > 0");
     return a;
 }
 
@@ -84,11 +70,7 @@ int main(int argc, char** argv) {
         Scene scene = loadScene(args.scene);
         for (RectLight& l : scene.lights) l.radiance *= args.radianceScale;
 
-        RenderSettings pipeline;
-        pipeline.method = Method::Aci;
-        pipeline.width = args.size;
-        pipeline.height = args.size;
-        pipeline.threads = args.threads;
+        RenderSettings pipeline = bench::squareSettings(Method::Aci, args.size, args.threads);
         applyAciMode(pipeline.aci, parseAciMode(args.aciMode, "--aci-mode"));
         RenderSettings perPixel = pipeline;
         perPixel.method = Method::AciPixel;
@@ -152,12 +134,8 @@ int main(int argc, char** argv) {
                         c.stats.seconds, args.threads, d.stats.seconds, a.stats.seconds,
                         c.stats.seconds / d.stats.seconds, same ? "yes" : "NO");
         }
-    } catch (const InputError& e) {
-        std::fprintf(stderr, "bench_render: %s\n", e.what());
-        return 2;
-    } catch (const std::exception& e) {
-        std::fprintf(stderr, "bench_render: %s\n", e.what());
-        return 1;
+    } catch (...) {
+        return bench::reportException("bench_render");
     }
     return 0;
 }

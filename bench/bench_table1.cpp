@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.h"
 #include "penumbra/compare.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
@@ -53,45 +54,24 @@ struct Args {
 
 Args parseArgs(int argc, char** argv) {
     Args a;
-    for (int i = 1; i < argc; ++i) {
-        std::string s = argv[i];
-        auto next = [&]() -> std::string {
-            if (i + 1 >= argc) {
-                std::fprintf(stderr, "bench_table1: %s needs a value\n", s.c_str());
-                std::exit(2);
-            }
-            return argv[++i];
-        };
-        if (s == "--size")
-            a.size = std::atoi(next().c_str());
-        else if (s == "--threads")
-            a.threads = std::atoi(next().c_str());
-        else if (s == "--ref-samples")
-            a.refSamples = std::atoi(next().c_str());
-        else if (s == "--sweep-size")
-            a.sweepSize = std::atoi(next().c_str());
-        else if (s == "--out")
-            a.out = next();
-        else if (s == "--work")
-            a.work = next();
-        else if (s == "--no-plot")
-            a.plot = false;
-        else if (s == "--quick") {
-            a.size = 200;
-            a.refSamples = 256;
-            a.sweepSize = 100;
-        } else if (!s.empty() && s[0] != '-') {
-            a.scene = s;
-        } else {
-            std::fprintf(stderr, "bench_table1: unknown option %s\n", s.c_str());
-            std::exit(2);
-        }
-    }
+    const auto quick = [&a] {
+        a.size = 200;
+        a.refSamples = 256;
+        a.sweepSize = 100;
+    };
+    bench::parseOptions("bench_table1", argc, argv,
+                        {{"--size", &a.size},
+                         {"--threads", &a.threads},
+                         {"--ref-samples", &a.refSamples},
+                         {"--sweep-size", &a.sweepSize},
+                         {"--out", &a.out},
+                         {"--work", &a.work},
+                         {"--no-plot", [&a] { a.plot = false; }},
+                         {"--quick", quick}},
+                        &a.scene);
     if (a.scene.empty()) a.scene = "vdb_scenes/table1.json";
-    if (a.size < 16 || a.threads < 1 || a.refSamples < 1 || a.sweepSize < 16) {
-        std::fprintf(stderr, "bench_table1: --size and --sweep-size >= 16, others >= 1\n");
-        std::exit(2);
-    }
+    if (a.size < 16 || a.threads < 1 || a.refSamples < 1 || a.sweepSize < 16)
+        bench::failUsage("bench_table1", "--size and --sweep-size >= 16, others >= 1");
     return a;
 }
 
@@ -117,14 +97,7 @@ class Bench {
           mCheck(check),
           mMask(mask) {}
 
-    RenderSettings base(Method m) const {
-        RenderSettings rs;
-        rs.method = m;
-        rs.width = mSize;
-        rs.height = mSize;
-        rs.threads = mThreads;
-        return rs;
-    }
+    RenderSettings base(Method m) const { return bench::squareSettings(m, mSize, mThreads); }
 
     Row run(const std::string& name, const RenderSettings& rs) const {
         Row row;
@@ -643,12 +616,8 @@ int main(int argc, char** argv) {
                             rc, data.c_str(), script.c_str());
             }
         }
-    } catch (const InputError& e) {
-        std::fprintf(stderr, "bench_table1: %s\n", e.what());
-        return 2;
-    } catch (const std::exception& e) {
-        std::fprintf(stderr, "bench_table1: %s\n", e.what());
-        return 1;
+    } catch (...) {
+        return bench::reportException("bench_table1");
     }
     return 0;
 }

@@ -427,14 +427,25 @@ std::string sceneRelativePath(const std::string& sceneDir, const std::string& fi
 
 /// The fields a job may give, any of them possibly inherited from "defaults".
 struct JobSpec {
-    std::optional<std::string> scene, output, name, stats, method;
-    std::optional<int> width, height, aciGrid, aciSteps, maxSpan, samples, mcMaxDepth;
-    std::optional<double> mcThreshold;
-    std::optional<uint64_t> seed;
-    std::optional<AciMode> aciMode;
-    std::string methodWhere, samplesWhere;
+    std::optional<std::string> scene, output, name, stats;
+    /// The render settings given (keys of the JSON model, render_settings.h), each checked
+    /// where it was read, and where that was (defaults or the job).
+    Json settings = Json::object();
+    std::map<std::string, std::string> settingsWhere;
     std::map<std::string, std::string> set;  // normalized pointer -> JSON text; sorted
 };
+
+// The render settings a manifest may give: every key of the model but the thread count, which
+// belongs to the whole batch (--jobs).
+const std::vector<std::string>& manifestSettingKeys() {
+    static const std::vector<std::string> keys = [] {
+        std::vector<std::string> k;
+        for (const std::string& key : RenderSettings::keys())
+            if (key != "threads") k.push_back(key);
+        return k;
+    }();
+    return keys;
+}
 
 class ManifestReader {
 public:
@@ -448,10 +459,9 @@ public:
         if (root.contains("defaults")) {
             const Json& d = root["defaults"];
             requireObject(d, "/defaults");
-            checkKeys(d, "/defaults",
-                      {"scene", "set", "method", "width", "height", "aci_grid", "aci_steps",
-                       "aci_mode", "max_span", "samples", "mc_threshold", "mc_max_depth",
-                       "seed"});
+            std::vector<std::string> keys = {"scene", "set"};
+            keys.insert(keys.end(), manifestSettingKeys().begin(), manifestSettingKeys().end());
+            checkKeys(d, "/defaults", keys);
             readFields(d, "/defaults", defaults);
         }
         BatchManifest manifest;
@@ -485,10 +495,11 @@ public:
     }
 
 private:
-    static inline const std::vector<std::string> kJobKeys = {
-        "scene",    "output",    "name",     "stats",        "set",          "method",
-        "width",    "height",    "aci_grid", "aci_steps",    "aci_mode",     "max_span",
-        "samples",  "mc_threshold", "mc_max_depth", "seed"};
+    static inline const std::vector<std::string> kJobKeys = [] {
+        std::vector<std::string> k = {"scene", "output", "name", "stats", "set"};
+        k.insert(k.end(), manifestSettingKeys().begin(), manifestSettingKeys().end());
+        return k;
+    }();
 
     [[noreturn]] void fail(const std::string& where, const std::string& message) const {
         throw InputError(mFile, where, message);
@@ -535,53 +546,13 @@ private:
         if (obj.contains("output")) spec.output = readString(obj["output"], at("output"));
         if (obj.contains("name")) spec.name = readString(obj["name"], at("name"));
         if (obj.contains("stats")) spec.stats = readString(obj["stats"], at("stats"));
-        if (obj.contains("method")) {
-            spec.method = readString(obj["method"], at("method"));
-            spec.methodWhere = at("method");
-            try {
-                parseMethod(*spec.method, at("method"));
-            } catch (const InputError& e) {
-                fail(at("method"), e.message());
-            }
-        }
-        if (obj.contains("width")) spec.width = readInt(obj["width"], at("width"), 1, 65536);
-        if (obj.contains("height")) spec.height = readInt(obj["height"], at("height"), 1, 65536);
-        if (obj.contains("aci_grid")) {
-            spec.aciGrid = readInt(obj["aci_grid"], at("aci_grid"), kAciGridRange.lo, kAciGridRange.hi);
-        }
-        if (obj.contains("aci_steps")) {
-            spec.aciSteps = readInt(obj["aci_steps"], at("aci_steps"), kAciStepsRange.lo, kAciStepsRange.hi);
-        }
-        if (obj.contains("aci_mode")) {
-            const std::string mode = readString(obj["aci_mode"], at("aci_mode"));
-            try {
-                spec.aciMode = parseAciMode(mode, at("aci_mode"));
-            } catch (const InputError& e) {
-                fail(at("aci_mode"), e.message());  // with the manifest's name
-            }
-        }
-        if (obj.contains("max_span")) {
-            spec.maxSpan = readInt(obj["max_span"], at("max_span"), kMaxSpanRange.lo, kMaxSpanRange.hi);
-        }
-        if (obj.contains("samples")) {
-            spec.samples = readInt(obj["samples"], at("samples"), kMcSamplesRange.lo, kMcSamplesRange.hi);
-            spec.samplesWhere = at("samples");
-        }
-        if (obj.contains("mc_threshold")) {
-            const Json& v = obj["mc_threshold"];
-            if (!v.is_number() || !(v.get<double>() > 0.0)) {
-                fail(at("mc_threshold"), "must be a number > 0");
-            }
-            spec.mcThreshold = v.get<double>();
-        }
-        if (obj.contains("mc_max_depth")) {
-            spec.mcMaxDepth = readInt(obj["mc_max_depth"], at("mc_max_depth"), kMcMaxDepthRange.lo,
-                                       kMcMaxDepthRange.hi);
-        }
-        if (obj.contains("seed")) {
-            const Json& v = obj["seed"];
-            if (!v.is_number_unsigned()) fail(at("seed"), "must be an integer >= 0");
-            spec.seed = v.get<uint64_t>();
+        for (const std::string& key : manifestSettingKeys()) {
+            if (!obj.contains(key)) continue;
+            // Checked here, so that an error names where the value stands.
+            RenderSettings check;
+            check.readJson(Json{{key, obj[key]}}, mFile, where);
+            spec.settings[key] = obj[key];
+            spec.settingsWhere[key] = at(key.c_str());
         }
         if (obj.contains("set")) {
             const Json& set = obj["set"];
@@ -612,32 +583,21 @@ private:
         if (spec.stats) job.stats = resolvePath(mBaseDir, *spec.stats);
         for (const auto& [pointer, value] : spec.set) job.overrides.emplace_back(pointer, value);
         RenderSettings& s = job.settings;
-        if (spec.method) s.method = parseMethod(*spec.method, spec.methodWhere);
-        s.width = spec.width.value_or(0);
-        s.height = spec.height.value_or(0);
-        s.aci.grid = spec.aciGrid.value_or(s.aci.grid);
-        s.aci.steps = spec.aciSteps.value_or(s.aci.steps);
-        if (spec.aciMode) applyAciMode(s.aci, *spec.aciMode);
-        s.maxSpan = spec.maxSpan.value_or(s.maxSpan);
-        // "samples" on a job of another method is a mistake; in "defaults" it is meant for the
-        // Monte Carlo jobs only. Other methods keep the default Monte Carlo settings, so that
-        // their hash does not change with settings they do not use.
-        const bool fromDefaults = spec.samplesWhere.rfind("/defaults", 0) == 0;
-        if (spec.samples && !isMonteCarlo(s.method) && !fromDefaults) {
-            fail(spec.samplesWhere, std::string("only applies to the Monte Carlo methods, not '") +
-                                        methodName(s.method) + "'");
-        }
-        if (isMonteCarlo(s.method)) {
-            s.mc.samples = spec.samples.value_or(s.mc.samples);
-            s.mc.threshold = spec.mcThreshold.value_or(s.mc.threshold);
-            s.mc.maxDepth = spec.mcMaxDepth.value_or(s.mc.maxDepth);
-            s.mc.seed = spec.seed.value_or(s.mc.seed);
+        s.readJson(spec.settings, mFile, where);
+        // "samples" on a job of another method is a mistake; in "defaults" (and the other Monte
+        // Carlo settings anywhere) it is meant for the Monte Carlo jobs only. Other methods keep
+        // the default Monte Carlo settings, so that their hash does not change with settings
+        // they do not use.
+        if (!isMonteCarlo(s.method)) {
+            const auto samples = spec.settingsWhere.find("samples");
+            if (samples != spec.settingsWhere.end() && samples->second.rfind("/defaults", 0) != 0) {
+                fail(samples->second, std::string("only applies to the Monte Carlo methods, not '") +
+                                          methodName(s.method) + "'");
+            }
+            s.mc = RenderSettings().mc;
         }
         s.threads = -1;
-        if ((long(s.aci.grid) << (s.aci.steps + 1)) > kMaxLatticeUnits) {
-            fail(where, "aci_grid x 2^(aci_steps+1) must be at most " +
-                            std::to_string(kMaxLatticeUnits));
-        }
+        s.validate(mFile, where);
         return job;
     }
 
@@ -848,20 +808,11 @@ std::string sidecarJson(const BatchJob& job, const std::string& hash, int width,
     j["origin"] = job.origin;
     j["scene"] = job.scene;
     j["output"] = job.output;
-    j["method"] = methodName(job.settings.method);
+    // The settings in the model's names, with the size rendered (the camera's when not set).
+    const nlohmann::ordered_json settings = job.settings.toJson();
+    for (const auto& [key, value] : settings.items()) j[key] = value;
     j["width"] = width;
     j["height"] = height;
-    j["aci_grid"] = job.settings.aci.grid;
-    j["aci_steps"] = job.settings.aci.steps;
-    j["aci_mode"] = aciModeName(aciModeOf(job.settings.aci));
-    j["max_span"] = job.settings.maxSpan;
-    if (isMonteCarlo(job.settings.method)) {
-        const McSettings& mc = job.settings.mc;
-        j["samples"] = mc.samples > 0 ? mc.samples : defaultSamples(job.settings.method);
-        j["mc_threshold"] = mc.threshold;
-        j["mc_max_depth"] = mc.maxDepth;
-        j["seed"] = mc.seed;
-    }
     nlohmann::ordered_json set = nlohmann::ordered_json::object();
     for (const auto& [pointer, value] : job.overrides) {
         set[pointer] = nlohmann::ordered_json::parse(value);
@@ -1012,20 +963,16 @@ void runJob(RunState& run, size_t slot) {
             const std::string sidecar = sidecarPath(job.output);
             files.addOutput(sidecar, job.pointer + "/output");
             files.addOutput(job.output, job.pointer + "/output");
-            const ImageMetadata metadata = {
+            ImageMetadata metadata = {
                 {"ImageDescription", "penumbra batch render of " + job.scene},
                 {"penumbra:scene", job.scene},
                 {"penumbra:job_name", job.name},
                 {kHashAttribute, hash},
-                {"penumbra:method", st.method},
-                {"penumbra:aci_grid", std::to_string(st.aciGrid)},
-                {"penumbra:aci_steps", std::to_string(st.aciSteps)},
-                {"penumbra:aci_mode", st.aciMode},
-                {"penumbra:max_span", std::to_string(job.settings.maxSpan)},
-                {"penumbra:seconds", formatDouble(st.seconds)},
-                {"penumbra:viewing_rays", std::to_string(st.viewingRays)},
-                {"penumbra:shadow_rays", std::to_string(st.shadowRays)},
             };
+            for (auto& item : settingsMetadata(job.settings)) metadata.push_back(std::move(item));
+            metadata.push_back({"penumbra:seconds", formatDouble(st.seconds)});
+            metadata.push_back({"penumbra:viewing_rays", std::to_string(st.viewingRays)});
+            metadata.push_back({"penumbra:shadow_rays", std::to_string(st.shadowRays)});
             const std::string stagedImage = files.stage(job.output);
             writeImage(job.output, r.color, metadata, job.pointer + "/output", stagedImage);
             const FileDigest digest = digestFile(stagedImage);
@@ -1511,20 +1458,11 @@ std::string resolveSceneText(const BatchJob& job) {
 }
 
 std::string jobHash(const BatchJob& job, const std::string& resolvedSceneText) {
-    const RenderSettings& s = job.settings;
+    // Every setting in the model's names (RenderSettings::toJson: what the job asks for, not
+    // the thread count), then the scene as resolved.
     std::ostringstream key;
-    key << "penumbra-batch-job 1\n"
-        << "method " << methodName(s.method) << "\n"
-        << "size " << s.width << " " << s.height << "\n"
-        << "aci " << s.aci.grid << " " << s.aci.steps << " " << formatDouble(s.aci.rayOffset)
-        << " " << formatDouble(s.aci.thresholdScale) << " " << s.aci.refine << " "
-        << s.aci.gradient << " " << s.aci.seed << " " << s.aci.distanceGuided << " "
-        << s.aci.curvedContour << " " << s.aci.midlineCheck << " " << s.aci.tangentContour
-        << " " << s.aci.guidedProbes << " " << aciModeName(aciModeOf(s.aci)) << "\n"
-        << "pipeline " << s.maxSpan << " " << s.shaftCulling << " " << s.coherence << " "
-        << s.adaptiveGrid << " " << s.maxGridFactor << "\n"
-        << "mc " << s.mc.samples << " " << formatDouble(s.mc.threshold) << " " << s.mc.maxDepth
-        << " " << formatDouble(s.mc.rayOffset) << " " << s.mc.seed << "\n"
+    key << "penumbra-batch-job 2\n"
+        << "settings " << job.settings.toJson().dump() << "\n"
         << "scene " << resolvedSceneText.size() << "\n"
         << resolvedSceneText;
     return hex16(fnv1a64(key.str()));

@@ -1246,43 +1246,6 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
     return out;
 }
 
-const char* aciModeName(AciMode mode) {
-    switch (mode) {
-        case AciMode::Paper: return "paper";
-        case AciMode::Arcs: return "arcs";
-        case AciMode::Tangent: return "tangent";
-    }
-    return "tangent";
-}
-
-AciMode parseAciMode(const std::string& name, const std::string& where) {
-    for (AciMode m : {AciMode::Paper, AciMode::Arcs, AciMode::Tangent})
-        if (name == aciModeName(m)) return m;
-    throw InputError("", where, "unknown ACI mode '" + name + "' (expected paper, arcs or tangent)");
-}
-
-void applyAciMode(AciSettings& s, AciMode mode) {
-    const bool beyondPaper = mode != AciMode::Paper;
-    s.curvedContour = beyondPaper;
-    s.midlineCheck = beyondPaper;
-    s.distanceGuided = mode == AciMode::Tangent;
-    s.tangentContour = mode == AciMode::Tangent;
-    s.coverage = mode == AciMode::Tangent;
-    s.guidedProbes = mode == AciMode::Tangent ? 1 : 0;
-}
-
-AciMode aciModeOf(const AciSettings& s) {
-    for (AciMode m : {AciMode::Paper, AciMode::Arcs}) {
-        AciSettings t = s;
-        applyAciMode(t, m);
-        if (t.curvedContour == s.curvedContour && t.midlineCheck == s.midlineCheck &&
-            t.distanceGuided == s.distanceGuided && t.tangentContour == s.tangentContour &&
-            t.guidedProbes == s.guidedProbes && t.coverage == s.coverage)
-            return m;
-    }
-    return AciMode::Tangent;
-}
-
 Estimate contourIntegral(const Receiver& r, const RectLight& light, Occluder::Query& query,
                          const AciSettings& settings) {
     ContourIntegrator integrator(settings);

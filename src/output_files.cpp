@@ -1,5 +1,8 @@
 #include "penumbra/output_files.h"
 
+#include <nlohmann/json.hpp>
+#include "penumbra/render_settings.h"
+
 #include <signal.h>
 #include <unistd.h>
 
@@ -14,6 +17,10 @@
 #include <system_error>
 #include <vector>
 #include <cstdio>
+
+#include <nlohmann/json.hpp>
+
+#include "penumbra/render_settings.h"
 
 #include "penumbra/error.h"
 #include "penumbra/hash.h"
@@ -239,6 +246,15 @@ FileDigest digestFile(const std::string& path) {
     if (in.bad()) throw std::runtime_error("cannot read '" + path + "'");
     d.hash = hex16(h);
     return d;
+}
+
+ImageMetadata settingsMetadata(const RenderSettings& settings) {
+    ImageMetadata m;
+    const nlohmann::ordered_json json = settings.toJson();
+    for (const auto& [key, value] : json.items()) {
+        m.push_back({"penumbra:" + key, value.is_string() ? value.get<std::string>() : value.dump()});
+    }
+    return m;
 }
 
 }  // namespace penumbra

@@ -19,6 +19,8 @@
 #include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
+#include <nlohmann/json.hpp>
+
 #include "penumbra/camera.h"
 #include "penumbra/error.h"
 #include "penumbra/form_factor.h"
@@ -782,14 +784,6 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
     }
 }
 
-void checkRange(const std::string& flag, long value, long lo, long hi) {
-    if (value < lo || value > hi) {
-        throw InputError("", flag,
-                         "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                             "], got " + std::to_string(value));
-    }
-}
-
 }  // namespace
 
 double renderImageBytes(int width, int height) {
@@ -819,22 +813,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     if (!scene.camera) {
         throw InputError(scene.file, "/camera", "the scene has no camera, which rendering needs");
     }
-    checkRange("--width", settingsIn.width, 0, 65536);
-    checkRange("--height", settingsIn.height, 0, 65536);
-    checkRange("--threads", settingsIn.threads, -1, 4096);
-    checkRange("--aci-grid", settingsIn.aci.grid, kAciGridRange.lo, kAciGridRange.hi);
-    checkRange("--aci-steps", settingsIn.aci.steps, kAciStepsRange.lo, kAciStepsRange.hi);
-    checkRange("--max-span", settingsIn.maxSpan, kMaxSpanRange.lo, kMaxSpanRange.hi);
-    checkRange("--max-grid-factor", settingsIn.maxGridFactor, 1, 16);
-    checkRange("--samples", settingsIn.mc.samples, 0, 1 << 20);
-    if (!(settingsIn.mc.threshold > 0.0) || !std::isfinite(settingsIn.mc.threshold)) {
-        throw InputError("", "--mc-threshold",
-                         "must be a finite number > 0, got " +
-                             std::to_string(settingsIn.mc.threshold));
-    }
-    checkRange("--mc-max-depth", settingsIn.mc.maxDepth, kMcMaxDepthRange.lo, kMcMaxDepthRange.hi);
-    checkRange("--mc-initial-depth", settingsIn.mc.initialDepth, kMcInitialDepthRange.lo,
-               kMcInitialDepthRange.hi);
+    settingsIn.validate();  // errors name the settings (render_settings.h)
     if (settingsIn.method == Method::McSolidAngle || settingsIn.method == Method::McRatio) {
         // The spherical-rectangle parametrization needs a rectangle, not a parallelogram.
         for (size_t i = 0; i < scene.lights.size(); ++i) {
@@ -874,18 +853,13 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     const int width = camera.width(), height = camera.height();
     checkRenderMemory(width, height,
                       settingsIn.width > 0 || settingsIn.height > 0 ? "" : scene.file,
-                      settingsIn.width > 0 || settingsIn.height > 0 ? "--width/--height"
+                      settingsIn.width > 0 || settingsIn.height > 0 ? "width/height"
                                                                     : "/camera/width");
     // Media the camera sees: their in-scattered light first (a lattice, built in parallel).
     bool mediaSeen = false;
     for (size_t i = 0; i < occluder.mediumCount(); ++i) mediaSeen |= !occluder.mediumBounds(i).empty();
     mediaSeen = mediaSeen && settingsIn.volumesVisible;
     std::unique_ptr<InScatter> inScatter;
-    if (mediaSeen) {
-        checkRange("--volume-cache", settingsIn.volumeCache, kVolumeCacheRange.lo, kVolumeCacheRange.hi);
-        checkRange("--volume-samples", settingsIn.volumeSamples, kVolumeSamplesRange.lo,
-                   kVolumeSamplesRange.hi);
-    }
     RenderResult result;
     result.color = Image(width, height, mediaSeen ? 4 : 3);
     result.aovs.shadowRays = Image(width, height, 1);
@@ -948,6 +922,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     for (const auto& state : states)
         if (state) stats.volumeRays += state->volume.raysCast();
     stats.method = methodName(settings.method);
+    stats.settingsJson = settingsIn.toJson().dump();
     stats.width = width;
     stats.height = height;
     stats.threads = threads;

@@ -69,6 +69,7 @@ std::string RenderStats::toJson() const {
     j["grid_increases"] = gridIncreases;
     j["grid_decreases"] = gridDecreases;
     j["max_depth"] = maxDepth;
+    if (!settingsJson.empty()) j["settings"] = nlohmann::ordered_json::parse(settingsJson);
     if (!buildJson.empty()) j["build"] = nlohmann::ordered_json::parse(buildJson);
     return j.dump(2) + "\n";
 }

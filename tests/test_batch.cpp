@@ -22,6 +22,7 @@
 #include <thread>
 #include <vector>
 
+#include "support/batch.h"
 #include "support/cli.h"
 #include "support/scenes.h"
 #include "penumbra/batch.h"
@@ -38,10 +39,10 @@ using namespace penumbra;
 
 namespace {
 
-const char* const kScene = test::kSphereScene;
-
+using test::countTemporaries;
 using test::readFile;
 using test::runPenumbraSpawned;
+using test::SceneDir;
 using test::spawnPenumbra;
 using test::TempDir;
 using test::waitExit;
@@ -100,16 +101,6 @@ std::vector<SummaryRow> readSummaryCsv(const fs::path& path) {
 std::map<std::string, int> countStatuses(const std::vector<SummaryRow>& rows) {
     std::map<std::string, int> n;
     for (const SummaryRow& r : rows) ++n[r.status];
-    return n;
-}
-
-// Files of `dir` whose names start with a dot and contain ".tmp-": temporaries.
-int countTemporaries(const fs::path& dir) {
-    int n = 0;
-    for (const auto& e : fs::directory_iterator(dir)) {
-        const std::string name = e.path().filename().string();
-        if (name[0] == '.' && name.find(".tmp-") != std::string::npos) ++n;
-    }
     return n;
 }
 
@@ -225,9 +216,8 @@ TEST_CASE("frame templates expand {frame} with printf widths", "[batch]") {
 }
 
 TEST_CASE("a sweep expands to one job per frame with interpolated scene values", "[batch]") {
-    const TempDir tmp("sweep");
+    const SceneDir tmp("sweep");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     const std::string manifestText = R"({
       "defaults": {"method": "aci-pixel"},
       "jobs": [{"scene": "a.json", "output": "out/still.png", "set": {"/camera/width": 8}}],
@@ -353,9 +343,8 @@ TEST_CASE("a bad manifest is refused with the JSON pointer of the bad value", "[
 
 TEST_CASE("runBatch renders what render() renders, isolates a failing job, and resumes by hash",
           "[batch]") {
-    const TempDir tmp("run");
+    const SceneDir tmp("run");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     const std::string manifestText = R"({
       "jobs": [
         {"scene": "a.json", "output": "out/plain.exr", "stats": "out/plain.stats.json"},
@@ -393,7 +382,7 @@ TEST_CASE("runBatch renders what render() renders, isolates a failing job, and r
     CHECK_FALSE(fs::exists(dir / "out/bad.exr"));
     CHECK(fs::exists(dir / "out/plain.stats.json"));
     CHECK(fs::exists(dir / "out/plain.exr.job.json"));
-    CHECK(countTemporaries(dir / "out") == 0);
+    CHECK(countTemporaries(dir / "out", false) == 0);
 
     // The batch's picture is the one render() gives for the same scene, bit for bit.
     RenderSettings settings;
@@ -454,9 +443,8 @@ TEST_CASE("runBatch renders what render() renders, isolates a failing job, and r
 
 TEST_CASE("aci_mode picks the estimator's variant, is recorded, and re-renders when changed",
           "[batch]") {
-    const TempDir tmp("aci_mode");
+    const SceneDir tmp("aci_mode");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
 
     // Parsed: "defaults" give it, a job overrides it, and no mode means the default (tangent).
     const BatchManifest m = parseManifest(R"({"defaults": {"aci_mode": "paper"},
@@ -532,9 +520,8 @@ TEST_CASE("aci_mode picks the estimator's variant, is recorded, and re-renders w
 
 TEST_CASE("penumbra batch finishes the other jobs when one fails and names it, exit code 1",
           "[batch][cli]") {
-    const TempDir tmp("cli_fail");
+    const SceneDir tmp("cli_fail");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     writeFile(dir / "m.json", R"({
       "jobs": [{"scene": "a.json", "output": "out/bad.exr", "name": "broken-light",
                 "set": {"lights/0/edge_v": [0, 4, 0]}}],
@@ -576,21 +563,10 @@ TEST_CASE("penumbra batch finishes the other jobs when one fails and names it, e
 
 TEST_CASE("a batch killed with SIGKILL and resumed renders every job exactly once",
           "[batch][cli]") {
-    const TempDir tmp("kill");
-    const fs::path& dir = tmp.path;
     // Per-pixel ACI on a level-set sphere makes each frame take long enough to be interrupted.
-    writeFile(dir / "a.json", R"({
-      "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "width": 64, "height": 64},
-      "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],
-                  "radiance": [4, 4, 4]}],
-      "obstacles": [{"type": "sphere", "center": [0, 0, 1.2], "radius": 0.5}],
-      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
-      "level_set": {"voxel_size": 0.02}
-    })");
-    const int frames = 12;
-    writeFile(dir / "m.json", R"({"sweep": {"scene": "a.json", "output": "out/k_{frame:02d}.exr",
-      "frames": 12, "method": "aci-pixel",
-      "vary": {"lights/0/corner": {"from": [-1.5, -1, 4], "to": [0.5, -1, 4]}}}})");
+    const test::SlowSweepDir tmp("kill", "batch", 64, 12);
+    const fs::path& dir = tmp.path;
+    const int frames = tmp.frames;
     auto outputs = [&] {
         std::vector<std::string> names;
         if (!fs::exists(dir / "out")) return names;
@@ -605,10 +581,7 @@ TEST_CASE("a batch killed with SIGKILL and resumed renders every job exactly onc
 
     const pid_t pid =
         spawnPenumbra({"batch", (dir / "m.json").string(), "--jobs", "2"}, dir, "first");
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-    while (outputs().empty() && std::chrono::steady_clock::now() < deadline) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(2));
-    }
+    test::waitUntil([&] { return !outputs().empty(); }, std::chrono::milliseconds(2));
     REQUIRE(kill(pid, SIGKILL) == 0);
     int status = 0;
     REQUIRE(waitpid(pid, &status, 0) == pid);
@@ -648,7 +621,7 @@ TEST_CASE("a batch killed with SIGKILL and resumed renders every job exactly onc
         CHECK(meanOf(img) > 0.0);
         CHECK(fs::exists(dir / "out" / (name + ".job.json")));
     }
-    CHECK(countTemporaries(dir / "out") == 0);
+    CHECK(countTemporaries(dir / "out", false) == 0);
 
     // A third run has nothing left to do.
     REQUIRE(runPenumbra({"batch", (dir / "m.json").string(), "--resume", "--summary",
@@ -658,9 +631,8 @@ TEST_CASE("a batch killed with SIGKILL and resumed renders every job exactly onc
 }
 
 TEST_CASE("three shards run as separate processes render the whole batch once", "[batch][cli]") {
-    const TempDir tmp("shards");
+    const SceneDir tmp("shards");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     const int frames = 10;
     writeFile(dir / "m.json", R"({"sweep": {"scene": "a.json", "output": "out/s{frame:02d}.png",
       "frames": 10, "vary": {"lights/0/corner": {"from": [-1.5, -1, 4], "to": [0.5, -1, 4]}}}})");

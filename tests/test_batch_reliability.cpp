@@ -23,6 +23,7 @@
 #include <thread>
 #include <vector>
 
+#include "support/batch.h"
 #include "support/cli.h"
 #include "support/scenes.h"
 #include "penumbra/batch.h"
@@ -76,19 +77,16 @@ struct TempDir : test::TempDir {
     explicit TempDir(const std::string& name) : test::TempDir(name, "batchrel") {}
 };
 
+struct SceneDir : test::SceneDir {
+    explicit SceneDir(const std::string& name) : test::SceneDir(name, "batchrel") {}
+};
+
 int runPenumbra(const std::vector<std::string>& args, const fs::path& dir,
                 const std::string& tag) {
     return test::runPenumbraSpawned(args, dir, tag);
 }
 
-int countTemporaries(const fs::path& dir) {
-    int n = 0;
-    for (const auto& e : fs::recursive_directory_iterator(dir)) {
-        const std::string name = e.path().filename().string();
-        if (name[0] == '.' && name.find(".tmp-") != std::string::npos) ++n;
-    }
-    return n;
-}
+int countTemporaries(const fs::path& dir) { return test::countTemporaries(dir, true); }
 
 // The refusal of a manifest (loadManifest, then the checks runBatch makes first), as
 // "WHERE|MESSAGE", or "(accepted)". `summary` is checked as --summary.
@@ -113,9 +111,8 @@ bool contains(const std::string& s, const std::string& part) {
 TEST_CASE("B01-B05: batch outputs that clash with each other or an input are refused by real "
           "location, before any job runs",
           "[batch]") {
-    const TempDir tmp("clash");
+    const SceneDir tmp("clash");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     writeFile(dir / "b.json", kScene);
     writeFile(dir / "mesh.json", kMeshScene);
     writeFile(dir / "cube.obj", kCube);
@@ -126,81 +123,75 @@ TEST_CASE("B01-B05: batch outputs that clash with each other or an input are ref
         return m;
     };
 
+    // The manifest `text` (with `summary` as --summary) is refused with a message that starts
+    // with `start` and contains `part` (when one is given).
+    auto expectRefusal = [&](const std::string& text, const std::string& start,
+                             const std::string& part, const std::string& summary = "") {
+        const std::string r = refusal(manifest(text), summary);
+        CHECK_THAT(r, Catch::StartsWith(start));
+        if (!part.empty()) CHECK(contains(r, part));
+    };
+
     // B01: two jobs writing one file, however it is spelt: through a symlink to the directory,
     // as an absolute path, with `..`; a sweep whose frames share a `stats` file.
-    std::string r = refusal(manifest(R"({"jobs": [
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "a.exr"},
-        {"scene": "a.json", "output": "link/a.exr"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/1/output|'" + (dir / "link/a.exr").string() +
-                                    "' is also written by /jobs/0/output"));
-    CHECK(contains(r, "every output needs its own file"));
-    r = refusal(manifest(R"({"jobs": [
+        {"scene": "a.json", "output": "link/a.exr"}]})",
+                  "/jobs/1/output|'" + (dir / "link/a.exr").string() +
+                      "' is also written by /jobs/0/output",
+                  "every output needs its own file");
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "out/a.exr"},
-        {"scene": "a.json", "output": ")" + (dir / "out/a.exr").string() + R"("}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/1/output|"));
-    r = refusal(manifest(R"({"jobs": [
+        {"scene": "a.json", "output": ")" + (dir / "out/a.exr").string() + R"("}]})",
+                  "/jobs/1/output|", "");
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "out/x.exr"},
-        {"scene": "a.json", "output": "y.exr", "stats": "link/out/../out/x.exr"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/1/stats|"));
-    r = refusal(manifest(R"({"jobs": [
+        {"scene": "a.json", "output": "y.exr", "stats": "link/out/../out/x.exr"}]})",
+                  "/jobs/1/stats|", "");
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "a.exr", "stats": "b.exr"},
-        {"scene": "a.json", "output": "b.exr"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/1/output|"));
-    CHECK(contains(r, "is also written by /jobs/0/stats"));
-    r = refusal(manifest(R"({"jobs": [
+        {"scene": "a.json", "output": "b.exr"}]})",
+                  "/jobs/1/output|", "is also written by /jobs/0/stats");
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "a.exr"},
-        {"scene": "a.json", "output": "b.exr", "stats": "a.exr.job.json"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/1/stats|"));
-    CHECK(contains(r, "sidecar record of"));
-    r = refusal(manifest(R"({"sweep": {"scene": "a.json", "output": "f{frame}.exr",
-                                       "stats": "shared.json", "frames": 3}})"));
-    CHECK_THAT(r, Catch::StartsWith("/sweep/stats|frame 1: '"));
-    CHECK(contains(r, "is also written by /sweep/stats, frame 0"));
+        {"scene": "a.json", "output": "b.exr", "stats": "a.exr.job.json"}]})",
+                  "/jobs/1/stats|", "sidecar record of");
+    expectRefusal(R"({"sweep": {"scene": "a.json", "output": "f{frame}.exr",
+                                "stats": "shared.json", "frames": 3}})",
+                  "/sweep/stats|frame 1: '", "is also written by /sweep/stats, frame 0");
 
     // B02: a job's output or statistics that is the manifest.
-    r = refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr",
-                                       "stats": "m.json"}]})"));
-    CHECK(r == "/jobs/0/stats|'" + (dir / "m.json").string() +
-                   "' is the batch manifest, which this batch reads: refusing to overwrite an "
-                   "input");
-
-    r = refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr",
-                                       "stats": ".m.json.lock"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/0/stats|"));
-    CHECK(contains(r, "is the batch manifest's lock file"));
+    CHECK(refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr",
+                                         "stats": "m.json"}]})")) ==
+          "/jobs/0/stats|'" + (dir / "m.json").string() +
+              "' is the batch manifest, which this batch reads: refusing to overwrite an input");
+    expectRefusal(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": ".m.json.lock"}]})",
+                  "/jobs/0/stats|", "is the batch manifest's lock file");
 
     // B03: a scene file that any job reads, also a later job's, also through a hard link.
-    r = refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": "b.json"},
-                                      {"scene": "b.json", "output": "b.exr"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/0/stats|"));
-    CHECK(contains(r, "is the scene of /jobs/1, which this batch reads"));
+    expectRefusal(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": "b.json"},
+                               {"scene": "b.json", "output": "b.exr"}]})",
+                  "/jobs/0/stats|", "is the scene of /jobs/1, which this batch reads");
     fs::create_hard_link(dir / "a.json", dir / "hard.json");
-    r = refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr",
-                                       "stats": "hard.json"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/0/stats|"));
-    CHECK(contains(r, "is the scene of /jobs/0"));
+    expectRefusal(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": "hard.json"}]})",
+                  "/jobs/0/stats|", "is the scene of /jobs/0");
 
     // B04: a file a scene reads (a mesh, a .vdb), named by the scene or by a job's overrides.
-    r = refusal(manifest(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": "cube.obj"},
-                                      {"scene": "mesh.json", "output": "m.exr"}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/0/stats|"));
-    CHECK(contains(r, "is /obstacles/0/file of " + (dir / "mesh.json").string()));
-    r = refusal(manifest(R"({"jobs": [
+    expectRefusal(R"({"jobs": [{"scene": "a.json", "output": "a.exr", "stats": "cube.obj"},
+                               {"scene": "mesh.json", "output": "m.exr"}]})",
+                  "/jobs/0/stats|", "is /obstacles/0/file of " + (dir / "mesh.json").string());
+    expectRefusal(R"({"jobs": [
         {"scene": "a.json", "output": "a.exr", "stats": "other.obj"},
-        {"scene": "mesh.json", "output": "m.exr", "set": {"obstacles/0/file": "other.obj"}}]})"));
-    CHECK_THAT(r, Catch::StartsWith("/jobs/0/stats|"));
-    CHECK(contains(r, "/obstacles/0/file of"));
+        {"scene": "mesh.json", "output": "m.exr", "set": {"obstacles/0/file": "other.obj"}}]})",
+                  "/jobs/0/stats|", "/obstacles/0/file of");
 
     // B05: a summary that is the manifest, or any file a job writes (here through the symlink).
     const std::string good = R"({"jobs": [{"scene": "a.json", "output": "out/a.exr",
                                            "stats": "out/a.stats.json"}]})";
     CHECK(refusal(manifest(good)) == "(accepted)");
-    r = refusal(manifest(good), m.string());
-    CHECK_THAT(r, Catch::StartsWith("--summary|"));
-    CHECK(contains(r, "is the batch manifest"));
-    r = refusal(manifest(good), (dir / "link/out/a.stats.json").string());
-    CHECK_THAT(r, Catch::StartsWith("--summary|"));
-    CHECK(contains(r, "is also written by /jobs/0/stats"));
+    expectRefusal(good, "--summary|", "is the batch manifest", m.string());
+    expectRefusal(good, "--summary|", "is also written by /jobs/0/stats",
+                  (dir / "link/out/a.stats.json").string());
     CHECK(refusal(manifest(good), (dir / "summary.csv").string()) == "(accepted)");
 
     // runBatch makes the same checks before any job runs: nothing is written.
@@ -240,9 +231,8 @@ TEST_CASE("B08: batch temporaries are unique per write and a live run's are neve
     // Within one manifest a shared `stats` is refused (B01); across manifests run at once in
     // one process (the case where a name made of the process id alone collided), every job
     // writes its own temporary and the last rename wins.
-    const TempDir tmp("shared_stats");
+    const SceneDir tmp("shared_stats");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     const std::string shared = (dir / "shared.stats.json").string();
     const int runs = 6;
     std::vector<BatchManifest> manifests;
@@ -350,33 +340,20 @@ TEST_CASE("B06: lock files let the shards of one count run together and refuse a
 TEST_CASE("B06: a second penumbra batch of a manifest being run refuses; the first finishes "
           "every job once",
           "[batch][cli]") {
-    const TempDir tmp("lock_cli");
-    const fs::path& dir = tmp.path;
     // A level-set sphere with per-pixel ACI: about a quarter of a second per frame on one
     // thread (the level set is built once and shared by the frames), 24 frames: the first run
     // is still going for seconds after its first output, when the second starts.
-    writeFile(dir / "a.json", R"({
-      "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "width": 48, "height": 48},
-      "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],
-                  "radiance": [4, 4, 4]}],
-      "obstacles": [{"type": "sphere", "center": [0, 0, 1.2], "radius": 0.5}],
-      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
-      "level_set": {"voxel_size": 0.02}
-    })");
-    const int frames = 24;
-    writeFile(dir / "m.json", R"({"sweep": {"scene": "a.json", "output": "out/k_{frame:02d}.exr",
-      "frames": 24, "method": "aci-pixel",
-      "vary": {"lights/0/corner": {"from": [-1.5, -1, 4], "to": [0.5, -1, 4]}}}})");
+    const test::SlowSweepDir tmp("lock_cli", "batchrel", 48, 24);
+    const fs::path& dir = tmp.path;
+    const int frames = tmp.frames;
     const std::string m = (dir / "m.json").string();
 
     const pid_t first = spawnPenumbra(
         {"batch", m, "--jobs", "1", "--resume", "--summary", (dir / "first.csv").string()}, dir,
         "first");
     // The lock is taken before the first job; wait for the first output to appear.
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-    while (!fs::exists(dir / "out/k_00.exr") && std::chrono::steady_clock::now() < deadline) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    }
+    test::waitUntil([&] { return fs::exists(dir / "out/k_00.exr"); },
+                    std::chrono::milliseconds(5));
     REQUIRE(fs::exists(dir / "out/k_00.exr"));
     // A second run of the whole batch, and one of a shard, while the first holds the lock.
     const pid_t second = spawnPenumbra({"batch", m, "--jobs", "1", "--resume", "--summary",
@@ -427,9 +404,8 @@ TEST_CASE("B06: a second penumbra batch of a manifest being run refuses; the fir
 TEST_CASE("B07: resume checks an output's size and content hash: a truncated or altered image "
           "is rendered again",
           "[batch]") {
-    const TempDir tmp("verify");
+    const SceneDir tmp("verify");
     const fs::path& dir = tmp.path;
-    writeFile(dir / "a.json", kScene);
     writeFile(dir / "m.json", R"({"jobs": [
         {"scene": "a.json", "output": "out/truncated.exr"},
         {"scene": "a.json", "output": "out/flipped.exr"},

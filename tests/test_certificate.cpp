@@ -630,35 +630,27 @@ TEST_CASE("certificates next to features thinner than the far-field companion's 
 TEST_CASE("certificates over mixtures of 2-6 obstacles hold, radiusOthers too", "[certificate]") {
     RunOptions opt;
     opt.segments = 500;
-    for (uint64_t k = 0; k < 3; ++k) {
-        Scene s = randomMixture(300 + k, true, false);
-        s.name = "analytic mixture " + std::to_string(k) + " (" +
-                 std::to_string(s.obstacles.size()) + " obstacles)";
-        opt.seed = 310 + k;
-        opt.compareExact = true;
-        opt.exactBelow = 1e-4;  // boxes
-        const Outcome o = runScene(s, opt);
-        checkOutcome(s.name, o);
-        CHECK(o.othersCertified > 50);
-    }
-    opt.compareExact = false;  // level sets: conservative bounds
-    for (uint64_t k = 0; k < 2; ++k) {
-        Scene s = randomMixture(400 + k, false, true);
-        s.name = "level-set mixture " + std::to_string(k) + " (" +
-                 std::to_string(s.obstacles.size()) + " obstacles, voxels 0.01 and 0.02)";
-        opt.seed = 410 + k;
-        const Outcome o = runScene(s, opt);
-        checkOutcome(s.name, o);
-        CHECK(o.othersCertified > 50);
-    }
-    for (uint64_t k = 0; k < 2; ++k) {
-        Scene s = randomMixture(500 + k, true, true);
-        s.name = "mixed analytic + level-set " + std::to_string(k) + " (" +
-                 std::to_string(s.obstacles.size()) + " obstacles, voxels 0.01 and 0.02)";
-        opt.seed = 510 + k;
-        const Outcome o = runScene(s, opt);
-        checkOutcome(s.name, o);
-        CHECK(o.othersCertified > 50);
+    opt.exactBelow = 1e-4;  // boxes
+    // Scenes randomMixture(seed + k), runs seeded seed + 10 + k.
+    struct Group {
+        uint64_t seed;
+        uint64_t count;
+        bool analytic, levelSets;
+        const char* name;
+    };
+    for (const Group& g : {Group{300, 3, true, false, "analytic mixture "},
+                           Group{400, 2, false, true, "level-set mixture "},
+                           Group{500, 2, true, true, "mixed analytic + level-set "}}) {
+        opt.compareExact = !g.levelSets;  // level sets: conservative bounds
+        for (uint64_t k = 0; k < g.count; ++k) {
+            Scene s = randomMixture(g.seed + k, g.analytic, g.levelSets);
+            s.name = g.name + std::to_string(k) + " (" + std::to_string(s.obstacles.size()) +
+                     (g.levelSets ? " obstacles, voxels 0.01 and 0.02)" : " obstacles)");
+            opt.seed = g.seed + 10 + k;
+            const Outcome o = runScene(s, opt);
+            checkOutcome(s.name, o);
+            CHECK(o.othersCertified > 50);
+        }
     }
 }
 

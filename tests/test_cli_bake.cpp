@@ -25,16 +25,8 @@ using namespace penumbra;
 namespace {
 
 using test::readFile;
+using test::runPenumbra;
 using Run = test::Run;
-
-/// Runs a command line through the shell, stdin from `input`.
-Run runShell(const std::string& command, const std::string& input, const fs::path& dir) {
-    return test::runShell(command, dir, input);
-}
-
-Run penumbraRun(const std::string& args, const fs::path& dir, const std::string& input = "") {
-    return test::runPenumbra(args, dir, input);
-}
 
 fs::path makeTempDir(const std::string& name) { return test::makeTempDir("bake", name); }
 
@@ -77,7 +69,7 @@ TEST_CASE("bake then load gives the same probe values", "[cli][bake][scenes]") {
     const fs::path dir = makeTempDir("roundtrip");
     writeTet(dir);
     std::ofstream(dir / "scene.json") << scene(kObstacles);
-    Run run = penumbraRun("bake " + (dir / "scene.json").string() + " -o " +
+    Run run = runPenumbra("bake " + (dir / "scene.json").string() + " -o " +
                               (dir / "baked.vdb").string() + " --verbose",
                           dir);
     INFO(run.err);
@@ -107,8 +99,8 @@ TEST_CASE("bake then load gives the same probe values", "[cli][bake][scenes]") {
     std::ofstream(dir / "baked.json")
         << std::string(R"({"lights": [)") + kLight +
                R"(], "obstacles": [{"type": "vdb", "file": "baked.vdb"}]})";
-    const Run a = penumbraRun("probe " + (dir / "scene.json").string(), dir, sensors());
-    const Run b = penumbraRun("probe " + (dir / "baked.json").string(), dir, sensors());
+    const Run a = runPenumbra("probe " + (dir / "scene.json").string(), dir, sensors());
+    const Run b = runPenumbra("probe " + (dir / "baked.json").string(), dir, sensors());
     REQUIRE(a.exitCode == 0);
     REQUIRE(b.exitCode == 0);
     CHECK(std::count(a.out.begin(), a.out.end(), '\n') == 41);
@@ -127,7 +119,7 @@ TEST_CASE("bake then load gives the same probe values", "[cli][bake][scenes]") {
 
     // OpenVDB's own tools read the file (when installed).
     if (std::system("command -v vdb_print > /dev/null 2>&1") == 0) {
-        const Run print = runShell("vdb_print -l " + (dir / "baked.vdb").string(), "", dir);
+        const Run print = test::runShell("vdb_print -l " + (dir / "baked.vdb").string(), dir);
         CHECK(print.exitCode == 0);
         for (const char* name : {"ball", "obstacle_1", "ring", "tet"}) {
             CHECK(print.out.find(std::string("Name: ") + name) != std::string::npos);
@@ -146,7 +138,7 @@ TEST_CASE("bake voxelizes analytic obstacles, names duplicates apart, writes hal
         {"type": "sphere", "name": "s", "center": [0,0,1.2], "radius": 0.4, "analytic": true,
          "voxel_size": 0.025},
         {"type": "sphere", "name": "s", "center": [1,0,1.2], "radius": 0.2}])");
-    Run run = penumbraRun("bake " + (dir / "scene.json").string() + " -o " +
+    Run run = runPenumbra("bake " + (dir / "scene.json").string() + " -o " +
                               (dir / "full.vdb").string() + " -q",
                           dir);
     INFO(run.err);
@@ -181,7 +173,7 @@ TEST_CASE("bake voxelizes analytic obstacles, names duplicates apart, writes hal
 
     // --half: half the bytes for the voxel values (the file also holds the tree's topology, and
     // both are compressed), the same surface to ~1e-3 of the band.
-    run = penumbraRun("bake " + (dir / "scene.json").string() + " -o " +
+    run = runPenumbra("bake " + (dir / "scene.json").string() + " -o " +
                           (dir / "half.vdb").string() + " --half -q",
                       dir);
     REQUIRE(run.exitCode == 0);
@@ -202,7 +194,7 @@ TEST_CASE("bake refuses bad input in one line, exit code 2, and leaves no file",
     const std::string sceneFile = (dir / "scene.json").string();
     auto refused = [&](const std::string& args, const std::string& fragment) {
         INFO(args);
-        const Run run = penumbraRun(args, dir);
+        const Run run = runPenumbra(args, dir);
         INFO(run.err);
         CHECK(run.exitCode == 2);
         CHECK(run.out.empty());
@@ -215,7 +207,7 @@ TEST_CASE("bake refuses bad input in one line, exit code 2, and leaves no file",
     fs::create_directories(dir / "d.vdb");
     refused("bake " + sceneFile + " -o " + (dir / "d.vdb").string(), "is a directory");
     // A missing option is CLI11's message (with its usage hint on a second line).
-    const Run noOutput = penumbraRun("bake " + sceneFile, dir);
+    const Run noOutput = runPenumbra("bake " + sceneFile, dir);
     CHECK(noOutput.exitCode == 2);
     CHECK(noOutput.err.find("--output is required") != std::string::npos);
 
@@ -230,7 +222,7 @@ TEST_CASE("bake refuses bad input in one line, exit code 2, and leaves no file",
     CHECK_FALSE(fs::exists(dir / "b.vdb"));
 
     // A refused bake leaves an existing file as it was.
-    REQUIRE(penumbraRun("bake " + sceneFile + " -o " + (dir / "keep.vdb").string() + " -q", dir)
+    REQUIRE(runPenumbra("bake " + sceneFile + " -o " + (dir / "keep.vdb").string() + " -q", dir)
                 .exitCode == 0);
     const auto size = fs::file_size(dir / "keep.vdb");
     refused("bake " + (dir / "bad.json").string() + " -o " + (dir / "keep.vdb").string(),

@@ -3,6 +3,8 @@
 
 #include <sys/wait.h>
 
+#include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -12,6 +14,7 @@
 
 #include "support/cli.h"
 #include "support/exact_shadow.h"
+#include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
 
 namespace fs = std::filesystem;
@@ -19,15 +22,35 @@ using namespace penumbra;
 
 namespace {
 
-using test::readFile;
-using Run = test::Run;
+using ::test::readFile;
+using Run = ::test::Run;
 
-// Runs the program with `input` on stdin; stderr goes to DIR/stderr.txt.
-Run runPenumbra(const std::string& args, const std::string& input, const fs::path& dir) {
-    return test::runPenumbra(args, dir, input);
+// Runs `penumbra probe ARGS` with `input` on stdin; stderr goes to DIR/stderr.txt.
+Run probe(const std::string& args, const std::string& input, const fs::path& dir) {
+    return ::test::runPenumbra("probe " + args, dir, input);
 }
 
-fs::path makeTempDir(const std::string& name) { return test::makeTempDir("probe", name); }
+fs::path makeTempDir(const std::string& name) { return ::test::makeTempDir("probe", name); }
+
+/// probe's output on stdout: checks the header and returns each row's eight numbers (x, y, z,
+/// form_factor, dF_dx, dF_dy, dF_dz, shadow_rays); a number that does not read stays NaN.
+std::vector<std::array<double, 8>> readRows(const std::string& out) {
+    std::istringstream lines(out);
+    std::string line;
+    std::getline(lines, line);
+    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
+    std::vector<std::array<double, 8>> rows;
+    while (std::getline(lines, line)) {
+        std::array<double, 8> v;
+        v.fill(std::nan(""));
+        char comma;
+        std::istringstream cells(line);
+        cells >> v[0];
+        for (int i = 1; i < 8; ++i) cells >> comma >> v[i];
+        rows.push_back(v);
+    }
+    return rows;
+}
 
 const char* kScene = R"({
   "lights": [{"name": "key", "corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0],
@@ -42,28 +65,19 @@ TEST_CASE("probe answers sensor points in order with the estimator's values", "[
     const fs::path dir = makeTempDir("ok");
     std::ofstream(dir / "scene.json") << kScene;
     const std::string input = "x,y,z,nx,ny,nz\n-2.0,0.3,0,0,0,1\n1.2,0.43,0,0,0,2\n0.6,0.4,0,0,0,1\n";
-    const Run run = runPenumbra("probe " + (dir / "scene.json").string(), input, dir);
+    const Run run = probe((dir / "scene.json").string(), input, dir);
     INFO(readFile(dir / "stderr.txt"));
     REQUIRE(run.exitCode == 0);
-    std::istringstream lines(run.out);
-    std::string line;
-    std::getline(lines, line);
-    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
+    const std::vector<std::array<double, 8>> rows = readRows(run.out);
 
-    RectLight light;
-    light.corner = Vec3(-1, -1, 4);
-    light.edgeU = Vec3(0, 2, 0);
-    light.edgeV = Vec3(2, 0, 0);
+    const RectLight light = penumbra::test::paperLight();
     Occluder occ({AnalyticSphere{Vec3(0.3, 0.2, 2.0), 0.7}});
     Occluder::Query query = occ.makeQuery();
     const std::vector<Vec3> points = {Vec3(-2.0, 0.3, 0), Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0)};
-    for (const Vec3& p : points) {
-        REQUIRE(std::getline(lines, line));
-        double v[8];
-        char comma;
-        std::istringstream cells(line);
-        cells >> v[0];
-        for (int i = 1; i < 8; ++i) cells >> comma >> v[i];
+    REQUIRE(rows.size() == points.size());
+    for (size_t k = 0; k < points.size(); ++k) {
+        const Vec3& p = points[k];
+        const std::array<double, 8>& v = rows[k];
         const Estimate e = contourIntegral({p, Vec3(0, 0, 1)}, light, query, AciSettings{});
         CHECK(v[0] == Approx(p.x));
         CHECK(v[3] == Approx(e.formFactor).epsilon(1e-9));
@@ -75,7 +89,6 @@ TEST_CASE("probe answers sensor points in order with the estimator's values", "[
                                                             Vec3(0.3, 0.2, 2.0), 0.7);
         CHECK(std::abs(v[3] - exactF) < 0.0625 * unoccludedFormFactor(light, {p, Vec3(0, 0, 1)}));
     }
-    CHECK_FALSE(std::getline(lines, line));
 }
 
 TEST_CASE("probe refuses bad input with one line, exit code 2 and no output", "[cli][probe]") {
@@ -83,28 +96,28 @@ TEST_CASE("probe refuses bad input with one line, exit code 2 and no output", "[
     std::ofstream(dir / "scene.json") << kScene;
     const std::string scene = (dir / "scene.json").string();
 
-    Run run = runPenumbra("probe " + scene, "x,y,z,nx,ny,nz\n0,0,0,0,0,1\n1,2,abc,0,0,1\n", dir);
+    Run run = probe(scene, "x,y,z,nx,ny,nz\n0,0,0,0,0,1\n1,2,abc,0,0,1\n", dir);
     CHECK(run.exitCode == 2);
     CHECK(run.out.empty());
     std::string err = readFile(dir / "stderr.txt");
     CHECK(err.find("line 3, column z") != std::string::npos);
     CHECK(std::count(err.begin(), err.end(), '\n') == 1);
 
-    run = runPenumbra("probe " + scene, "0,0,0,0,0,0\n", dir);
+    run = probe(scene, "0,0,0,0,0,0\n", dir);
     CHECK(run.exitCode == 2);
     CHECK(run.out.empty());
     CHECK(readFile(dir / "stderr.txt").find("normal is zero") != std::string::npos);
 
-    run = runPenumbra("probe " + scene + " --light fill", "0,0,0,0,0,1\n", dir);
+    run = probe(scene + " --light fill", "0,0,0,0,0,1\n", dir);
     CHECK(run.exitCode == 2);
     CHECK(run.out.empty());
 
-    run = runPenumbra("probe " + scene + " --aci-steps 99", "0,0,0,0,0,1\n", dir);
+    run = probe(scene + " --aci-steps 99", "0,0,0,0,0,1\n", dir);
     CHECK(run.exitCode == 2);
     CHECK(run.out.empty());
 
     std::ofstream(dir / "broken.json") << R"({"lights": [{"corner": [0,0,1], "edge_u": [1,0,0], "edge_v": [2,0,0]}]})";
-    run = runPenumbra("probe " + (dir / "broken.json").string(), "0,0,0,0,0,1\n", dir);
+    run = probe((dir / "broken.json").string(), "0,0,0,0,0,1\n", dir);
     CHECK(run.exitCode == 2);
     CHECK(run.out.empty());
     err = readFile(dir / "stderr.txt");
@@ -118,30 +131,20 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
     const std::string scene = (dir / "scene.json").string();
     const std::string input =
         "x,y,z,nx,ny,nz\n1.2,0.43,0,0,0,1\n0.6,0.4,0,0,0,1\n-2.0,0.3,0,0,0,1\n";
-    RectLight light;
-    light.corner = Vec3(-1, -1, 4);
-    light.edgeU = Vec3(0, 2, 0);
-    light.edgeV = Vec3(2, 0, 0);
+    const RectLight light = penumbra::test::paperLight();
     const std::vector<Vec3> points = {Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0), Vec3(-2.0, 0.3, 0)};
     for (const char* method : {"reference", "mc-adaptive", "mc-solid-angle", "mc-ratio"}) {
         INFO(method);
         const std::string samples =
             std::string(method) == "mc-adaptive" ? "" : " --samples 256";
-        const Run run = runPenumbra(
-            "probe " + scene + " --method " + method + samples + " --seed 3", input, dir);
+        const Run run =
+            probe(scene + " --method " + method + samples + " --seed 3", input, dir);
         INFO(readFile(dir / "stderr.txt"));
         REQUIRE(run.exitCode == 0);
-        std::istringstream lines(run.out);
-        std::string line;
-        std::getline(lines, line);
-        CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
+        const std::vector<std::array<double, 8>> rows = readRows(run.out);
+        REQUIRE(rows.size() == points.size());
         for (size_t i = 0; i < points.size(); ++i) {
-            REQUIRE(std::getline(lines, line));
-            double v[8];
-            char comma;
-            std::istringstream cells(line);
-            cells >> v[0];
-            for (int k = 1; k < 8; ++k) cells >> comma >> v[k];
+            const std::array<double, 8>& v = rows[i];
             CHECK(v[4] == 0.0);
             CHECK(v[5] == 0.0);
             CHECK(v[6] == 0.0);
@@ -181,10 +184,9 @@ TEST_CASE("probe runs the Monte Carlo methods: values, zero gradients, rays", "[
                 CHECK(std::abs(v[3] - exactF) <= 5.0 * top / (2.0 * 16.0));
             }
         }
-        CHECK_FALSE(std::getline(lines, line));
     }
     // --samples is for the Monte Carlo methods only.
-    const Run bad = runPenumbra("probe " + scene + " --samples 16", input, dir);
+    const Run bad = probe(scene + " --samples 16", input, dir);
     CHECK(bad.exitCode == 2);
     CHECK(bad.out.empty());
 }
@@ -196,10 +198,7 @@ TEST_CASE("probe --aci-mode picks the estimator's variant; an unknown mode is re
     const std::string scene = (dir / "scene.json").string();
     const std::string input = "x,y,z,nx,ny,nz\n1.2,0.43,0,0,0,1\n0.6,0.4,0,0,0,1\n";
 
-    RectLight light;
-    light.corner = Vec3(-1, -1, 4);
-    light.edgeU = Vec3(0, 2, 0);
-    light.edgeV = Vec3(2, 0, 0);
+    const RectLight light = penumbra::test::paperLight();
     Occluder occ({AnalyticSphere{Vec3(0.3, 0.2, 2.0), 0.7}});
     Occluder::Query query = occ.makeQuery();
     const std::vector<Vec3> points = {Vec3(1.2, 0.43, 0), Vec3(0.6, 0.4, 0)};
@@ -208,29 +207,22 @@ TEST_CASE("probe --aci-mode picks the estimator's variant; an unknown mode is re
     // As probe does: rays start 1.5 voxels off the surface (a hair off it without voxels).
     paper.rayOffset = occ.minVoxelSize() > 0 ? 1.5 * occ.minVoxelSize() : 1e-9;
 
-    const Run run = runPenumbra("probe " + scene + " --aci-mode paper", input, dir);
+    const Run run = probe(scene + " --aci-mode paper", input, dir);
     INFO(readFile(dir / "stderr.txt"));
     REQUIRE(run.exitCode == 0);
-    std::istringstream lines(run.out);
-    std::string line;
-    std::getline(lines, line);
-    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays");
-    for (const Vec3& p : points) {
-        REQUIRE(std::getline(lines, line));
-        double v[8];
-        char comma;
-        std::istringstream cells(line);
-        cells >> v[0];
-        for (int i = 1; i < 8; ++i) cells >> comma >> v[i];
+    const std::vector<std::array<double, 8>> rows = readRows(run.out);
+    REQUIRE(rows.size() == points.size());
+    for (size_t k = 0; k < points.size(); ++k) {
+        const Vec3& p = points[k];
+        const std::array<double, 8>& v = rows[k];
         const Estimate e = contourIntegral({p, Vec3(0, 0, 1)}, light, query, paper);
         CHECK(v[3] == Approx(e.formFactor).epsilon(1e-9));
         CHECK(v[4] == Approx(e.gradient.x).margin(1e-9));
         CHECK(v[5] == Approx(e.gradient.y).margin(1e-9));
         CHECK(v[7] == e.counts.shadowRays());
     }
-    CHECK_FALSE(std::getline(lines, line));
 
-    const Run bad = runPenumbra("probe " + scene + " --aci-mode bogus", input, dir);
+    const Run bad = probe(scene + " --aci-mode bogus", input, dir);
     CHECK(bad.exitCode == 2);
     CHECK(bad.out.empty());
     const std::string err = readFile(dir / "stderr.txt");

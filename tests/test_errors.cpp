@@ -115,21 +115,28 @@ private:
     std::set<std::string> mBefore;
 };
 
+// Runs `penumbra ARGS` (as Case::run) over a pre-existing `output` holding kPrevious, and checks
+// that it fails with exit code `code`, leaves `output` as it was and adds no file.
+void expectFailsKeeping(Case& c, const std::string& output, const std::string& args, int code,
+                        const std::string& env = "") {
+    c.write(output, kPrevious);
+    c.run(args, env);
+    INFO(readFile(c.path("stderr.txt")));
+    CHECK(c.exitCode == code);
+    CHECK(readFile(c.path(output)) == kPrevious);
+    CHECK(c.newFiles().empty());
+}
+
 // Renders `scene.json` (written from `sceneText`) to a pre-existing out.exr with extra `flags`,
 // and checks the common contract of a refused input: exit code, one line starting with the
 // program's prefix and containing every one of `needles`, out.exr unchanged, no new file.
 void expectRefused(Case& c, const std::string& sceneText, const std::string& flags, int code,
                    const std::vector<std::string>& needles, const std::string& env = "") {
     c.write("scene.json", sceneText);
-    c.write("out.exr", kPrevious);
-    c.run("render scene.json -o out.exr -q " + flags, env);
-    INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == code);
+    expectFailsKeeping(c, "out.exr", "render scene.json -o out.exr -q " + flags, code, env);
     const std::string line = c.errorLine();
     CHECK_THAT(line, Catch::StartsWith("penumbra: error: "));
     for (const auto& n : needles) CHECK_THAT(line, Catch::Contains(n));
-    CHECK(readFile(c.path("out.exr")) == kPrevious);
-    CHECK(c.newFiles().empty());
 }
 
 // "ulimit -v KB;" to run a case under an address-space limit, so that an input that made the
@@ -149,6 +156,13 @@ void writeGrid(const fs::path& file, openvdb::GridBase::Ptr grid) {
     openvdb::io::File vdb(file.string());
     vdb.write({grid});
     vdb.close();
+}
+
+// Renders sceneWith("") to a.exr, which must succeed: an image for the compare cases.
+void renderImageA(Case& c) {
+    c.write("scene.json", sceneWith(""));
+    c.run("render scene.json -o a.exr -q");
+    REQUIRE(c.exitCode == 0);
 }
 
 openvdb::FloatGrid::Ptr smallSphere() {
@@ -330,13 +344,22 @@ TEST_CASE("E17 degenerate light: parallel edges", "[errors]") {
                   "", 2, {"scene.json: /lights/0: degenerate rectangle", "parallel or zero"});
 }
 
-TEST_CASE("E18 camera inside an obstacle: rendered, not a crash", "[errors]") {
-    Case c("e18");
+namespace {
+
+// Renders a scene whose camera is inside its obstacle (E18, E18b).
+void renderFromInsideObstacle(Case& c) {
     c.write("scene.json",
             R"({"camera": {"eye": [0, 0.1, 1], "look_at": [0, 0, 0], "width": 8, "height": 8},
                )" + kBody +
                 R"(, "obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.5}]})");
     c.run("render scene.json -o out.exr -q");
+}
+
+}  // namespace
+
+TEST_CASE("E18 camera inside an obstacle: rendered, not a crash", "[errors]") {
+    Case c("e18");
+    renderFromInsideObstacle(c);
     INFO(readFile(c.path("stderr.txt")));
     CHECK(c.exitCode == 0);
     CHECK(fs::file_size(c.path("out.exr")) > 0);
@@ -344,11 +367,7 @@ TEST_CASE("E18 camera inside an obstacle: rendered, not a crash", "[errors]") {
 
 TEST_CASE("E18b camera inside an obstacle: a one-line warning", "[errors]") {
     Case c("e18b");
-    c.write("scene.json",
-            R"({"camera": {"eye": [0, 0.1, 1], "look_at": [0, 0, 0], "width": 8, "height": 8},
-               )" + kBody +
-                R"(, "obstacles": [{"type": "sphere", "center": [0,0,1], "radius": 0.5}]})");
-    c.run("render scene.json -o out.exr -q");
+    renderFromInsideObstacle(c);
     REQUIRE(c.exitCode == 0);
     REQUIRE(c.err.size() == 1);
     CHECK_THAT(c.err[0], Catch::Contains("warning") && Catch::Contains("/camera/eye"));
@@ -395,14 +414,9 @@ TEST_CASE("E22 output in a directory that does not exist", "[errors]") {
 TEST_CASE("E23 unknown output extension", "[errors]") {
     Case c("e23");
     c.write("scene.json", sceneWith(""));
-    c.write("out.tiff", kPrevious);
-    c.run("render scene.json -o out.tiff -q");
-    INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == 2);
+    expectFailsKeeping(c, "out.tiff", "render scene.json -o out.tiff -q", 2);
     CHECK_THAT(c.errorLine(), Catch::Contains("-o: ") && Catch::Contains("out.tiff") &&
                                   Catch::Contains("unknown image extension '.tiff'"));
-    CHECK(readFile(c.path("out.tiff")) == kPrevious);
-    CHECK(c.newFiles().empty());
 }
 
 TEST_CASE("E24 command-line value out of range", "[errors]") {
@@ -427,14 +441,9 @@ TEST_CASE("E24 command-line value out of range", "[errors]") {
 TEST_CASE("E25 malformed command line: exit code 2, output untouched", "[errors]") {
     Case c("e25");
     c.write("scene.json", sceneWith(""));
-    c.write("out.exr", kPrevious);
-    c.run("render scene.json -o out.exr --threads abc");
-    INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == 2);
+    expectFailsKeeping(c, "out.exr", "render scene.json -o out.exr --threads abc", 2);
     REQUIRE_FALSE(c.err.empty());
     CHECK_THAT(c.err[0], Catch::Contains("--threads"));
-    CHECK(readFile(c.path("out.exr")) == kPrevious);
-    CHECK(c.newFiles().empty());
 }
 
 TEST_CASE("E25b malformed command line: one line with the program's prefix",
@@ -450,13 +459,8 @@ TEST_CASE("E25b malformed command line: one line with the program's prefix",
 TEST_CASE("E26 bake: a bad scene leaves the previous .vdb", "[errors]") {
     Case c("e26");
     c.write("scene.json", "{\"lights\": []}");
-    c.write("out.vdb", kPrevious);
-    c.run("bake scene.json -o out.vdb");
-    INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == 2);
+    expectFailsKeeping(c, "out.vdb", "bake scene.json -o out.vdb", 2);
     CHECK_THAT(c.errorLine(), Catch::Contains("scene.json: /lights"));
-    CHECK(readFile(c.path("out.vdb")) == kPrevious);
-    CHECK(c.newFiles().empty());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -499,9 +503,7 @@ TEST_CASE("E29 two outputs that are one file, through a symlink or an absolute p
 
 TEST_CASE("E30 compare: an error map over one of its inputs", "[errors]") {
     Case c("e30");
-    c.write("scene.json", sceneWith(""));
-    c.run("render scene.json -o a.exr -q");
-    REQUIRE(c.exitCode == 0);
+    renderImageA(c);
     const std::string a = readFile(c.path("a.exr"));
     c.run("compare a.exr a.exr --error-map a.exr");
     CHECK(c.exitCode == 2);
@@ -516,13 +518,8 @@ TEST_CASE("E31 a failed write leaves every output as it was", "[errors]") {
     // the render (exit 1), and the image written before it must not replace out.exr.
     const std::string longName = std::string(236, 'f') + ".exr";
     c.write("scene.json", sceneWith(""));
-    c.write("out.exr", kPrevious);
-    c.run("render scene.json -o out.exr -q --aov-ff " + longName);
-    INFO(readFile(c.path("stderr.txt")));
-    CHECK(c.exitCode == 1);
+    expectFailsKeeping(c, "out.exr", "render scene.json -o out.exr -q --aov-ff " + longName, 1);
     CHECK_THAT(c.errorLine(), Catch::Contains("cannot write '" + longName + "'"));
-    CHECK(readFile(c.path("out.exr")) == kPrevious);
-    CHECK(c.newFiles().empty());
 }
 
 TEST_CASE("E32 a FIFO given as the scene or as a .vdb file", "[errors]") {
@@ -584,9 +581,7 @@ TEST_CASE("E35 numbers beyond the range of scene values", "[errors]") {
 TEST_CASE("E36 compare: an image with NaN, and one that claims billions of pixels",
           "[errors]") {
     Case c("e36");
-    c.write("scene.json", sceneWith(""));
-    c.run("render scene.json -o a.exr -q");
-    REQUIRE(c.exitCode == 0);
+    renderImageA(c);
     {
         // A copy of a.exr whose pixels are NaN.
         penumbra::Image img = penumbra::readImage(c.path("a.exr").string());

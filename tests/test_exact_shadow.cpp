@@ -84,19 +84,6 @@ double maxIntegrand(const Vec3& m) {
     return 1.0 / (kPi * h * h);
 }
 
-Mat3 rotation(const Vec3& axis, double angle) {
-    const Vec3 k = glm::normalize(axis);
-    const double c = std::cos(angle), s = std::sin(angle);
-    Mat3 r(0.0);
-    for (int j = 0; j < 3; ++j) {
-        Vec3 e(0.0);
-        e[j] = 1.0;
-        // Rodrigues' formula applied to the basis vector e_j gives column j.
-        r[j] = e * c + glm::cross(k, e) * s + k * glm::dot(k, e) * (1.0 - c);
-    }
-    return r;
-}
-
 }  // namespace
 
 TEST_CASE("catalogued parallel-rectangle form factor matches quadrature and its limits",

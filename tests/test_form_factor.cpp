@@ -34,17 +34,7 @@ double parallelBySuperposition(double x, double y, double x0, double x1, double 
            exact::parallelRectCornerAbove(x1, y0, c) + exact::parallelRectCornerAbove(x0, y0, c);
 }
 
-Mat3 rotation(const Vec3& axis, double angle) {
-    const Vec3 k = glm::normalize(axis);
-    const double c = std::cos(angle), s = std::sin(angle);
-    Mat3 r(0.0);
-    for (int j = 0; j < 3; ++j) {
-        Vec3 e(0.0);
-        e[j] = 1.0;
-        r[j] = e * c + glm::cross(k, e) * s + k * glm::dot(k, e) * (1.0 - c);  // Rodrigues
-    }
-    return r;
-}
+using exact::rotation;
 
 double maxAbs(const Mat3& m) {
     double v = 0.0;

@@ -169,43 +169,44 @@ TEST_CASE("batch --status reports done, failed and missing jobs across shards",
     writeFile(tmp.path / "m.json", R"({"defaults": {"scene": "s.json"},
         "jobs": [{"output": "out/a.exr"}, {"output": "out/b.exr", "set": {"/lights/0/edge_u": [0, 0, 0]}},
                  {"output": "out/c.exr"}, {"output": "out/d.exr"}]})");
-    Run st = penumbraIn(tmp.path, "batch m.json --status --shard-count 2");
-    CHECK(st.exitCode == 1);
-    CHECK(st.out.find("4 jobs: 0 done, 0 failed, 4 missing") != std::string::npos);
+    // Runs `penumbra batch m.json --status ARGS`, checks its exit code and that its output
+    // shows every one of `shown`.
+    auto expectStatus = [&](const std::string& args, int code,
+                            const std::vector<std::string>& shown) {
+        const Run st = penumbraIn(tmp.path, "batch m.json --status" + args);
+        INFO(st.out);
+        CHECK(st.exitCode == code);
+        for (const std::string& text : shown) CHECK(st.out.find(text) != std::string::npos);
+        return st;
+    };
+    expectStatus(" --shard-count 2", 1, {"4 jobs: 0 done, 0 failed, 4 missing"});
 
     REQUIRE(penumbraIn(tmp.path, "batch m.json -q --shard 0/2").exitCode == 0);
-    st = penumbraIn(tmp.path, "batch m.json --status --shard-count 2");
-    CHECK(st.exitCode == 1);
-    CHECK(st.out.find("4 jobs: 2 done, 0 failed, 2 missing") != std::string::npos);
-    CHECK(st.out.find("shard 0/2: 2 done, 0 failed, 0 missing") != std::string::npos);
-    CHECK(st.out.find("shard 1/2: 0 done, 0 failed, 2 missing") != std::string::npos);
+    expectStatus(" --shard-count 2", 1,
+                 {"4 jobs: 2 done, 0 failed, 2 missing", "shard 0/2: 2 done, 0 failed, 0 missing",
+                  "shard 1/2: 0 done, 0 failed, 2 missing"});
 
     CHECK(penumbraIn(tmp.path, "batch m.json -q --shard 1/2").exitCode == 1);
-    st = penumbraIn(tmp.path, "batch m.json --status");
-    CHECK(st.exitCode == 1);
-    CHECK(st.out.find("4 jobs: 3 done, 1 failed, 0 missing") != std::string::npos);
-    CHECK(st.out.find("failed: job 1 'out/b.exr'") != std::string::npos);
-    CHECK(st.out.find("degenerate rectangle") != std::string::npos);
-    CHECK(st.out.find("1\t0/1\tfailed") != std::string::npos);
+    expectStatus("", 1,
+                 {"4 jobs: 3 done, 1 failed, 0 missing", "failed: job 1 'out/b.exr'",
+                  "degenerate rectangle", "1\t0/1\tfailed"});
 
     // One shard's view, and quiet: only the totals.
-    st = penumbraIn(tmp.path, "batch m.json --status --shard 0/2 -q");
-    CHECK(st.exitCode == 0);
-    CHECK(st.out == "penumbra: batch m.json: 2 jobs: 2 done, 0 failed, 0 missing\n");
+    CHECK(expectStatus(" --shard 0/2 -q", 0, {}).out ==
+          "penumbra: batch m.json: 2 jobs: 2 done, 0 failed, 0 missing\n");
 
     // A damaged output is missing again; fixing the failed job's scene turns its record stale.
     fs::resize_file(tmp.path / "out/c.exr", 10);
     writeFile(tmp.path / "m.json", R"({"defaults": {"scene": "s.json"},
         "jobs": [{"output": "out/a.exr"}, {"output": "out/b.exr"},
                  {"output": "out/c.exr"}, {"output": "out/d.exr"}]})");
-    st = penumbraIn(tmp.path, "batch m.json --status -q");
-    CHECK(st.out == "penumbra: batch m.json: 4 jobs: 2 done, 0 failed, 2 missing\n");
+    CHECK(penumbraIn(tmp.path, "batch m.json --status -q").out ==
+          "penumbra: batch m.json: 4 jobs: 2 done, 0 failed, 2 missing\n");
     // Resume renders what is missing; the failure record goes with the success.
     REQUIRE(penumbraIn(tmp.path, "batch m.json -q --resume").exitCode == 0);
     CHECK_FALSE(fs::exists(tmp.path / "out/b.exr.failed.json"));
-    st = penumbraIn(tmp.path, "batch m.json --status -q");
-    CHECK(st.exitCode == 0);
-    CHECK(st.out == "penumbra: batch m.json: 4 jobs: 4 done, 0 failed, 0 missing\n");
+    CHECK(expectStatus(" -q", 0, {}).out ==
+          "penumbra: batch m.json: 4 jobs: 4 done, 0 failed, 0 missing\n");
     // --status runs nothing and takes no other run options.
     CHECK(penumbraIn(tmp.path, "batch m.json --status --resume").exitCode == 2);
 }

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <string>
 
+#include "support/temp_file.h"
 #include "penumbra/error.h"
 #include "penumbra/mesh.h"
 
@@ -16,24 +17,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-/// Writes `text` to a fresh file under the temp dir and removes it at scope exit.
-class TempObj {
-  public:
-    explicit TempObj(const std::string& text) {
-        static std::atomic<int> counter{0};
-        mPath = (fs::temp_directory_path() / ("penumbra_test_mesh_" + std::to_string(::getpid()) +
-                                              "_" + std::to_string(counter++) + ".obj"))
-                    .string();
-        std::ofstream(mPath) << text;
-    }
-    ~TempObj() {
-        std::error_code ec;
-        fs::remove(mPath, ec);
-    }
-    const std::string& path() const { return mPath; }
-
-  private:
-    std::string mPath;
+/// Writes `text` to a fresh .obj file under the temp dir and removes it at scope exit.
+struct TempObj : test::TempFile {
+    explicit TempObj(const std::string& text) : test::TempFile("mesh", ".obj", text) {}
 };
 
 // A unit cube from 0 to 1 with quad faces, corners listed in the usual binary order.

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "support/exact_shadow.h"
+#include "support/render_scene.h"
 #include "penumbra/error.h"
 #include "penumbra/monte_carlo.h"
 #include "penumbra/renderer.h"
@@ -399,32 +400,9 @@ TEST_CASE("mc-adaptive spends more rays as its threshold falls, in the penumbra 
 namespace {
 
 Scene tinyScene(int size) {
-    Scene s;
-    Camera cam;
-    cam.eye = Vec3(0.3, -3.0, 3.2);
-    cam.lookAt = Vec3(0.0, 0.0, 0.3);
-    cam.fovDeg = 42.0;
-    cam.width = size;
-    cam.height = size;
-    s.camera = cam;
-    RectLight l;
-    l.name = "key";
-    l.corner = Vec3(-0.5, -0.5, 2.0);
-    l.edgeU = Vec3(0.0, 1.0, 0.0);
-    l.edgeV = Vec3(1.0, 0.0, 0.0);
-    l.radiance = Rgb(10.0);
-    s.lights = {l};
-    Obstacle ball;
-    ball.name = "ball";
-    ball.shape = AnalyticSphere{Vec3(0.1, 0.05, 0.9), 0.3};
-    Obstacle box;
-    box.name = "box";
-    box.shape = AnalyticBox{Vec3(-0.75, -0.2, 0.4), Vec3(-0.45, 0.25, 0.65)};
-    s.obstacles = {ball, box};
-    PlaneReceiver ground;
-    ground.albedo = Rgb(1.0);
-    s.receivers = {ground};
-    return s;
+    return test::squareLightScene(
+        size, {Obstacle{"ball", AnalyticSphere{Vec3(0.1, 0.05, 0.9), 0.3}},
+               Obstacle{"box", AnalyticBox{Vec3(-0.75, -0.2, 0.4), Vec3(-0.45, 0.25, 0.65)}}});
 }
 
 }  // namespace

@@ -38,6 +38,15 @@ double analyticSphereHit(const Vec3& c, double r, const Vec3& from, const Vec3& 
     return (t > 0.0 && t < len) ? t : -1.0;
 }
 
+/// An occluder of one level-set sphere of radius kRadius (voxel kVoxel, half width 3) and a
+/// query on it.
+struct LevelSetSphere {
+    explicit LevelSetSphere(const Vec3& center)
+        : occ({makeSphereLevelSet(center, kRadius, kVoxel, 3.0)}), q(occ.makeQuery()) {}
+    Occluder occ;
+    Occluder::Query q;
+};
+
 Vec3 randomUnit(std::mt19937_64& rng) {
     std::normal_distribution<double> n(0.0, 1.0);
     Vec3 v(n(rng), n(rng), n(rng));
@@ -131,9 +140,8 @@ TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxe
     // That error grows as 1/cos(incidence); aiming within 0.8 r keeps cos >= 0.6, and the
     // worst error seen is ~0.1 voxel (printed below). 0.25 voxel keeps a margin of 2.5 while
     // still catching a half-voxel shift (cell-corner vs voxel-centre convention).
-    LevelSetPtr ls = makeSphereLevelSet(kCenter, kRadius, kVoxel, 3.0);
-    Occluder occ({ls});
-    auto q = occ.makeQuery();
+    LevelSetSphere sphere(kCenter);
+    Occluder::Query& q = sphere.q;
     std::mt19937_64 rng(20240611);
     std::uniform_real_distribution<double> u(0.0, 1.0);
 
@@ -172,9 +180,8 @@ TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxe
 }
 
 TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[occluder]") {
-    LevelSetPtr ls = makeSphereLevelSet(kCenter, kRadius, kVoxel, 3.0);
-    Occluder occ({ls});
-    auto q = occ.makeQuery();
+    LevelSetSphere sphere(kCenter);
+    Occluder::Query& q = sphere.q;
     std::mt19937_64 rng(7);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     const int kPoints = 500;
@@ -205,9 +212,8 @@ TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[
 }
 
 TEST_CASE("level-set occlusion is limited to the segment", "[occluder]") {
-    LevelSetPtr ls = makeSphereLevelSet(Vec3(0.0), kRadius, kVoxel, 3.0);
-    Occluder occ({ls});
-    auto q = occ.makeQuery();
+    LevelSetSphere sphere(Vec3(0.0));
+    Occluder::Query& q = sphere.q;
     const Vec3 from(0.05, 0.02, -2.0);
     const double tRef = analyticSphereHit(Vec3(0.0), kRadius, from, Vec3(0.05, 0.02, 2.0));
     REQUIRE(tRef > 0.0);

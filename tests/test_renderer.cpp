@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include "support/exact_shadow.h"
+#include "support/render_scene.h"
 #include "penumbra/camera.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
@@ -32,56 +33,19 @@ namespace {
 const Vec3 kSphereCenter(0.1, 0.05, 0.9);
 const double kSphereRadius = 0.3;
 
-// A unit-square light 2 units above the plane z = 0, emitting downwards (edgeU x edgeV = -z),
-// radiance chosen so that lit plane pixels are about 0.8.
-RectLight squareLight() {
-    RectLight l;
-    l.name = "key";
-    l.corner = Vec3(-0.5, -0.5, 2.0);
-    l.edgeU = Vec3(0.0, 1.0, 0.0);
-    l.edgeV = Vec3(1.0, 0.0, 0.0);
-    l.radiance = Rgb(10.0);
-    return l;
-}
+using test::squareLight;
 
 // Sphere above a white ground plane, seen from the side, with the whole penumbra in view.
 Scene sphereScene(int size, ObstacleShape shape = AnalyticSphere{kSphereCenter, kSphereRadius}) {
-    Scene s;
-    Camera cam;
-    cam.eye = Vec3(0.3, -3.0, 3.2);
-    cam.lookAt = Vec3(0.0, 0.0, 0.3);
-    cam.up = Vec3(0.0, 0.0, 1.0);
-    cam.fovDeg = 42.0;
-    cam.width = size;
-    cam.height = size;
-    s.camera = cam;
-    s.lights = {squareLight()};
-    Obstacle ball;
-    ball.name = "ball";
-    ball.shape = shape;
-    ball.albedo = Rgb(0.5, 0.6, 0.7);
-    s.obstacles = {ball};
-    PlaneReceiver ground;
-    ground.albedo = Rgb(1.0);
-    s.receivers = {ground};
-    return s;
+    return test::squareLightScene(size, {Obstacle{"ball", shape, Rgb(0.5, 0.6, 0.7)}});
 }
 
 // The sphere scene plus a box with sharp corners and two obstacles far from every shaft.
 Scene clutteredScene(int size) {
     Scene s = sphereScene(size);
-    Obstacle box;
-    box.name = "box";
-    box.shape = AnalyticBox{Vec3(-0.75, -0.2, 0.4), Vec3(-0.45, 0.25, 0.65)};
-    Obstacle farBall;
-    farBall.name = "far ball";
-    farBall.shape = AnalyticSphere{Vec3(2.2, 1.8, 0.3), 0.3};
-    Obstacle farBox;
-    farBox.name = "far box";
-    farBox.shape = AnalyticBox{Vec3(-2.6, 1.5, 0.0), Vec3(-2.0, 2.0, 0.5)};
-    s.obstacles.push_back(box);
-    s.obstacles.push_back(farBall);
-    s.obstacles.push_back(farBox);
+    s.obstacles.push_back({"box", AnalyticBox{Vec3(-0.75, -0.2, 0.4), Vec3(-0.45, 0.25, 0.65)}});
+    s.obstacles.push_back({"far ball", AnalyticSphere{Vec3(2.2, 1.8, 0.3), 0.3}});
+    s.obstacles.push_back({"far box", AnalyticBox{Vec3(-2.6, 1.5, 0.0), Vec3(-2.0, 2.0, 0.5)}});
     return s;
 }
 
@@ -442,15 +406,24 @@ TEST_CASE("render refuses a scene without camera and settings out of range", "[r
         }
         return std::string("no error");
     };
+    // The library names its settings by the JSON model's keys (render_settings.h), never by a
+    // command-line flag.
     RenderSettings rs;
     rs.width = -3;
-    CHECK(where(rs) == "--width");
+    CHECK(where(rs) == "width");
     rs = RenderSettings{};
     rs.aci.grid = 0;
-    CHECK(where(rs) == "--aci-grid");
+    CHECK(where(rs) == "aci_grid");
     rs = RenderSettings{};
     rs.aci.steps = 40;
-    CHECK(where(rs) == "--aci-steps");
+    CHECK(where(rs) == "aci_steps");
+    rs = RenderSettings{};
+    rs.aci.grid = 32;
+    rs.aci.steps = 12;
+    CHECK(where(rs) == "aci_steps");  // the lattice would be too large
+    rs = RenderSettings{};
+    rs.mc.samples = 64;  // on an ACI render
+    CHECK(where(rs) == "samples");
     CHECK(parseMethod("aci-pixel") == Method::AciPixel);
     CHECK_THROWS_AS(parseMethod("mc"), InputError);
 }

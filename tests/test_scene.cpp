@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <filesystem>
@@ -73,6 +74,17 @@ InputError refusal(const std::string& text) {
     throw std::logic_error("unreachable");
 }
 
+/// Loads the scene file `path` and returns the InputError it must raise.
+InputError loadRefusal(const std::string& path) {
+    try {
+        loadScene(path);
+    } catch (const InputError& e) {
+        return e;
+    }
+    FAIL("loaded: " << path);
+    throw std::logic_error("unreachable");
+}
+
 void requireRefused(const std::string& text, const std::string& pointer,
                     const std::string& fragment) {
     INFO(text);
@@ -85,6 +97,11 @@ void requireRefused(const std::string& text, const std::string& pointer,
     CHECK(what.find(pointer) != std::string::npos);
     CHECK(what.find(fragment) != std::string::npos);
     CHECK(what.find('\n') == std::string::npos);
+}
+
+/// requireRefused(text, pointer, fragment) for each {text, pointer, fragment}.
+void requireAllRefused(const std::vector<std::array<std::string, 3>>& cases) {
+    for (const auto& [text, pointer, fragment] : cases) requireRefused(text, pointer, fragment);
 }
 
 void requireVec(const Vec3& v, double x, double y, double z) {
@@ -278,31 +295,31 @@ TEST_CASE("refused inputs name the file and the exact JSON pointer", "[scene]") 
         requireRefused(withLight(R"("camera": [])"), "/camera", "expected an object");
     }
     SECTION("numbers out of range or non-finite") {
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 1e400})"),
-                       "/obstacles/0/radius", "must be finite");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,-1e999,1], "radius": 1})"),
-                       "/obstacles/0/center/1", "must be finite");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": -1})"),
-                       "/obstacles/0/radius", "must be > 0, got -1");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 0,
-                                    "analytic": true})"),
-                       "/obstacles/0/radius", "must be > 0, got 0");
-        requireRefused(obstacle(R"({"type": "box", "center": [0,0,1], "size": [1,0,1]})"),
-                       "/obstacles/0/size/1", "must be > 0, got 0");
-        requireRefused(withLight(R"("level_set": {"voxel_size": 0})"), "/level_set/voxel_size",
-                       "must be > 0, got 0");
-        requireRefused(withLight(R"("level_set": {"half_width": 0.5})"), "/level_set/half_width",
-                       "must be > 1");
-        // OpenVDB's rasterizer needs more than one voxel of band on each side.
-        requireRefused(withLight(R"("level_set": {"half_width": 1})"), "/level_set/half_width",
-                       "must be > 1");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 1,
-                                    "voxel_size": -0.1})"),
-                       "/obstacles/0/voxel_size", "must be > 0, got -0.1");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 0.01})"),
-                       "/obstacles/0/radius", "below 1.5 voxels");
-        requireRefused(obstacle(R"({"type": "sphere", "center": [1e7,0,1], "radius": 1})"),
-                       "/obstacles/0", "index range");
+        requireAllRefused({
+            {obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 1e400})"),
+             "/obstacles/0/radius", "must be finite"},
+            {obstacle(R"({"type": "sphere", "center": [0,-1e999,1], "radius": 1})"),
+             "/obstacles/0/center/1", "must be finite"},
+            {obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": -1})"),
+             "/obstacles/0/radius", "must be > 0, got -1"},
+            {obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 0, "analytic": true})"),
+             "/obstacles/0/radius", "must be > 0, got 0"},
+            {obstacle(R"({"type": "box", "center": [0,0,1], "size": [1,0,1]})"),
+             "/obstacles/0/size/1", "must be > 0, got 0"},
+            {withLight(R"("level_set": {"voxel_size": 0})"), "/level_set/voxel_size",
+             "must be > 0, got 0"},
+            {withLight(R"("level_set": {"half_width": 0.5})"), "/level_set/half_width",
+             "must be > 1"},
+            // OpenVDB's rasterizer needs more than one voxel of band on each side.
+            {withLight(R"("level_set": {"half_width": 1})"), "/level_set/half_width",
+             "must be > 1"},
+            {obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 1, "voxel_size": -0.1})"),
+             "/obstacles/0/voxel_size", "must be > 0, got -0.1"},
+            {obstacle(R"({"type": "sphere", "center": [0,0,1], "radius": 0.01})"),
+             "/obstacles/0/radius", "below 1.5 voxels"},
+            {obstacle(R"({"type": "sphere", "center": [1e7,0,1], "radius": 1})"), "/obstacles/0",
+             "index range"},
+        });
     }
     SECTION("colours") {
         requireRefused(light(R"({"corner": [0,0,0], "edge_u": [1,0,0], "edge_v": [0,1,0],
@@ -332,19 +349,18 @@ TEST_CASE("refused inputs name the file and the exact JSON pointer", "[scene]") 
                        "/receivers/0/checker/scale", "must be > 0");
     }
     SECTION("camera") {
-        requireRefused(withLight(R"("camera": {"width": 0})"), "/camera/width",
-                       "must be in [1, 32768], got 0");
-        requireRefused(withLight(R"("camera": {"height": 32769})"), "/camera/height",
-                       "must be in [1, 32768], got 32769");
-        requireRefused(withLight(R"("camera": {"fov_deg": 0})"), "/camera/fov_deg",
-                       "must be in (0, 180)");
-        requireRefused(withLight(R"("camera": {"fov_deg": 180})"), "/camera/fov_deg",
-                       "must be in (0, 180)");
-        requireRefused(withLight(R"("camera": {"eye": [1,2,3], "look_at": [1,2,3]})"),
-                       "/camera/look_at", "must differ from eye");
-        requireRefused(withLight(R"("camera": {"eye": [0,0,5], "look_at": [0,0,0]})"), "/camera/up",
-                       "parallel to the viewing direction");
-        requireRefused(withLight(R"("camera": {"up": [0,0,0]})"), "/camera/up", "non-zero vector");
+        auto camera = [](const std::string& c) { return withLight(R"("camera": )" + c); };
+        requireAllRefused({
+            {camera(R"({"width": 0})"), "/camera/width", "must be in [1, 32768], got 0"},
+            {camera(R"({"height": 32769})"), "/camera/height", "must be in [1, 32768], got 32769"},
+            {camera(R"({"fov_deg": 0})"), "/camera/fov_deg", "must be in (0, 180)"},
+            {camera(R"({"fov_deg": 180})"), "/camera/fov_deg", "must be in (0, 180)"},
+            {camera(R"({"eye": [1,2,3], "look_at": [1,2,3]})"), "/camera/look_at",
+             "must differ from eye"},
+            {camera(R"({"eye": [0,0,5], "look_at": [0,0,0]})"), "/camera/up",
+             "parallel to the viewing direction"},
+            {camera(R"({"up": [0,0,0]})"), "/camera/up", "non-zero vector"},
+        });
     }
     SECTION("unknown types suggest the nearest valid one") {
         requireRefused(obstacle(R"({"type": "sphre", "center": [0,0,1], "radius": 1})"),
@@ -439,39 +455,26 @@ TEST_CASE("relative .vdb paths resolve against the scene file's directory", "[sc
     // A missing file is refused at its "file" field and shows where it was looked for.
     const std::string missing = dir.write(
         "scenes/m.json", withLight(R"("obstacles": [{"type": "vdb", "file": "nope.vdb"}])"));
-    try {
-        loadScene(missing);
-        FAIL("accepted a missing .vdb");
-    } catch (const InputError& e) {
-        CHECK(e.file() == missing);
-        CHECK(e.where() == "/obstacles/0/file");
-        CHECK(e.message().find((dir.path() / "scenes" / "nope.vdb").string()) != std::string::npos);
-    }
+    const InputError e = loadRefusal(missing);
+    CHECK(e.file() == missing);
+    CHECK(e.where() == "/obstacles/0/file");
+    CHECK(e.message().find((dir.path() / "scenes" / "nope.vdb").string()) != std::string::npos);
 
     // A grid that is not in the file: the scene file and pointer first, the .vdb in the message.
     const std::string noGrid = dir.write(
         "scenes/g.json",
         withLight(R"("obstacles": [{"type": "vdb", "file": "../data/two.vdb", "grid": "C"}])"));
-    try {
-        loadScene(noGrid);
-        FAIL("accepted a missing grid");
-    } catch (const InputError& e) {
-        CHECK(e.file() == noGrid);
-        CHECK(e.where() == "/obstacles/0");
-        CHECK(e.message().find("two.vdb") != std::string::npos);
-        CHECK(e.message().find("'C'") != std::string::npos);
-    }
+    const InputError g = loadRefusal(noGrid);
+    CHECK(g.file() == noGrid);
+    CHECK(g.where() == "/obstacles/0");
+    CHECK(g.message().find("two.vdb") != std::string::npos);
+    CHECK(g.message().find("'C'") != std::string::npos);
 }
 
 TEST_CASE("a missing scene file is an InputError naming it", "[scene]") {
     TempDir dir;
     const std::string path = (dir.path() / "absent.json").string();
-    try {
-        loadScene(path);
-        FAIL("loaded a missing file");
-    } catch (const InputError& e) {
-        CHECK(e.file() == path);
-    }
+    CHECK(loadRefusal(path).file() == path);
 }
 
 TEST_CASE("level sets over the memory limit are refused before they are built", "[scene]") {

@@ -13,6 +13,7 @@
 #include <random>
 #include <string>
 
+#include "support/temp_file.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
 #include "penumbra/mesh.h"
@@ -133,28 +134,8 @@ SeamErrors seamErrors(const LevelSetPtr& ls, Op op, const Ball& a, const Ball& b
     return e;
 }
 
-/// A fresh file path under the temp dir, removed at scope exit.
-class TempFile {
-  public:
-    explicit TempFile(const std::string& suffix) {
-        static std::atomic<int> counter{0};
-        mPath = (fs::temp_directory_path() / ("penumbra_test_shape_" + std::to_string(::getpid()) +
-                                              "_" + std::to_string(counter++) + suffix))
-                    .string();
-    }
-    ~TempFile() {
-        std::error_code ec;
-        fs::remove(mPath, ec);
-    }
-    const std::string& path() const { return mPath; }
-
-  private:
-    std::string mPath;
-};
-
 std::shared_ptr<const TriangleMesh> meshFrom(const std::string& objText) {
-    TempFile f(".obj");
-    std::ofstream(f.path()) << objText;
+    const test::TempFile f("shape", ".obj", objText);
     return std::make_shared<const TriangleMesh>(readObj(f.path()));
 }
 

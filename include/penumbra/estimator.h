@@ -21,9 +21,7 @@ class ContourIntegrator;
 struct McSettings;
 
 /// A setting's accepted values, inclusive. Each setting has one range, the same for the command
-/// line, batch manifests and the library (render() checks them too): kAciGridRange and
-/// kAciStepsRange (contour_integrator.h), kMcSamplesRange, kMcMaxDepthRange and
-/// kMcInitialDepthRange (monte_carlo.h), kMaxSpanRange (renderer.h).
+/// line, batch manifests, Python and the library (render_settings.h).
 struct IntRange {
     int lo, hi;
     bool holds(long v) const { return v >= lo && v <= hi; }

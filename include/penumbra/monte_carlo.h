@@ -44,29 +44,11 @@
 #include "penumbra/form_factor.h"
 #include "penumbra/math.h"
 #include "penumbra/occluder.h"
+#include "penumbra/render_settings.h"
 
 namespace penumbra {
 
-constexpr IntRange kMcSamplesRange{1, 1 << 20};  ///< McSettings::samples (--samples, samples)
-constexpr IntRange kMcMaxDepthRange{0, 24};      ///< McSettings::maxDepth (--mc-max-depth)
-constexpr IntRange kMcInitialDepthRange{0, 8};   ///< McSettings::initialDepth
 
-struct McSettings {
-    /// Shadow rays per evaluation (fewer when part of the light is below the horizon). For
-    /// monteCarloAdaptive, the most rays one evaluation may spend (a cap; the threshold decides).
-    int samples = 16;
-    /// mc-adaptive: a cell is split while the standard error of its contribution exceeds this
-    /// fraction of the unoccluded form factor (smaller: more rays, less noise).
-    double threshold = 0.01;
-    /// mc-adaptive: deepest quadtree level (the root is level 0; cells of level d have side
-    /// 2^-d of the light's).
-    int maxDepth = 8;
-    /// mc-adaptive: the light starts as a 2^d x 2^d grid of cells (four rays each) before any
-    /// split; 0 starts from the whole light (4 rays).
-    int initialDepth = 0;
-    double rayOffset = 0.0;  ///< shadow rays start this far from M along n (as AciSettings)
-    uint64_t seed = 0;       ///< the evaluation's random stream (see mcSeed)
-};
 
 Estimate monteCarloReference(const Receiver& r, const RectLight& light, Occluder::Query& query,
                              const McSettings& settings);

@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "penumbra/image_io.h"
+
 namespace penumbra {
 
 /// The real location of a path: absolute, with symlinks and `.` / `..` resolved as far as the
@@ -33,6 +35,11 @@ void writeTextFileAtomically(const std::string& path, const std::string& text);
 
 /// Writes `text` to `file` (a staged temporary); messages name `path`, the file it stands for.
 void writeTextFile(const std::string& file, const std::string& text, const std::string& path);
+
+struct RenderSettings;
+/// The settings of a render as image attributes: "penumbra:KEY" for every key of
+/// RenderSettings::toJson() (strings as they are, numbers and booleans as JSON writes them).
+ImageMetadata settingsMetadata(const RenderSettings& settings);
 
 /// Every file one run writes. Register inputs and outputs first (clashes throw InputError naming
 /// the flag or field); write each output to stage(path); commit() renames them all at the end.

@@ -37,60 +37,13 @@
 #include "penumbra/image_io.h"
 #include "penumbra/math.h"
 #include "penumbra/monte_carlo.h"
+#include "penumbra/render_settings.h"
 #include "penumbra/scene.h"
 #include "penumbra/stats.h"
 
 namespace penumbra {
 
 
-constexpr IntRange kMaxSpanRange{1, 4096};  ///< RenderSettings::maxSpan (--max-span, max_span)
-
-struct RenderSettings {
-    Method method = Method::Aci;
-    int width = 0;    ///< 0: the camera's width
-    int height = 0;   ///< 0: the camera's height
-    int threads = 0;  ///< worker threads; 0: every hardware thread; -1: the caller's TBB arena
-    /// Estimator settings (grid p, steps n, ...). rayOffset <= 0 picks it automatically at
-    /// each receiver point (receiverRayOffset): 1.5 voxels on and near level sets, 1e-6 x the
-    /// scene's size elsewhere.
-    /// `gradient` off (the default here) skips the gradient, which only the gradient AOV uses.
-    AciSettings aci = [] {
-        AciSettings s;
-        s.gradient = false;
-        return s;
-    }();
-    int maxSpan = 32;          ///< longest span, in pixels (section 5: "a maximum length")
-    bool shaftCulling = true;  ///< off: every obstacle is a candidate of every span
-    bool coherence = true;     ///< off: ACI at every pixel of a span that has candidates
-    bool adaptiveGrid = true;  ///< section 5's adaptive first-level density (not with coverage)
-    /// Beyond the paper, tangent mode on receiver planes: answer a first-level ray again without
-    /// tracing while the pixel's point has moved less than the ray's distance bound
-    /// (AciSettings::reuseCorners), within each span.
-    bool reuseFirstLevel = true;
-    int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
-    /// Monte Carlo settings (samples, mc-adaptive's threshold, seed). `samples` 0 (the default
-    /// here) takes defaultSamples(method); rayOffset is taken from `aci.rayOffset`, and each
-    /// pixel's seed is mcSeed(x, y, light index, mc.seed).
-    McSettings mc = [] {
-        McSettings s;
-        s.samples = 0;
-        return s;
-    }();
-    /// Volumes seen by the camera (docs/volumes.md): viewing rays march through the media,
-    /// attenuating what lies behind and adding the light they scatter; the image gets an alpha
-    /// channel (the media's opacity along the ray). Off: media only cast shadows.
-    bool volumesVisible = true;
-    /// In-scattered light is computed on a lattice of this many nodes along the media's longest
-    /// extent (trilinear between nodes); 0: at every sample of every viewing ray (slow; for
-    /// measuring the lattice's error).
-    int volumeCache = 24;
-    /// Rays per in-scattering estimate (stratified over each light's area).
-    int volumeSamples = 64;
-};
-
-/// The accepted range of RenderSettings::volumeCache (0: no lattice) and volumeSamples.
-constexpr IntRange kVolumeCacheRange{0, 256};
-constexpr IntRange kVolumeSamplesRange{1, 65536};
 
 /// Extra images (AOVs), one channel each, same size as the picture.
 struct RenderAovs {

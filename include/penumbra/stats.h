@@ -25,6 +25,9 @@ struct RenderStats {
     /// The scene's obstacle build report (BuildReport::toJson(): voxels, bytes, seconds per
     /// obstacle), written as "build" when set; the command line sets it (not merged).
     std::string buildJson;
+    /// The settings rendered with (RenderSettings::toJson()), written as "settings" when set;
+    /// the renderer sets it (not merged).
+    std::string settingsJson;
 
     // Counts. A "pixel" below is one viewing ray; pixel-light pairs are counted per light.
     uint64_t viewingRays = 0;                ///< one per pixel

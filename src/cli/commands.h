@@ -3,13 +3,42 @@
 // propagate as exceptions (InputError -> 2, anything else -> 1) to main().
 #pragma once
 
+#include <algorithm>
 #include <functional>
+#include <string>
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include "penumbra/error.h"
+#include "penumbra/render_settings.h"
 
 namespace penumbra::cli {
 
 using Runner = std::function<int()>;
+
+// Settings flags are the keys of the JSON model (render_settings.h) with dashes: a command puts
+// the flags it was given into a JSON object under their keys, and the settings read it as a
+// batch manifest's are read. Errors about a key are reported against its flag.
+
+/// `value` under `key` in `given` when the flag of `key` was on the command line.
+template <class T>
+void putGiven(nlohmann::json& given, const CLI::App& cmd, const std::string& key, const T& value) {
+    if (cmd.count(flagOfKey(key)) > 0) given[key] = value;
+}
+
+/// Runs `body` (reading or checking settings); an InputError about a key of the model is
+/// thrown again about its flag.
+template <class F>
+void withFlagNames(F&& body) {
+    try {
+        body();
+    } catch (const InputError& e) {
+        const std::vector<std::string>& keys = RenderSettings::keys();
+        if (std::find(keys.begin(), keys.end(), e.where()) == keys.end()) throw;
+        throw InputError(e.file(), flagOfKey(e.where()), e.message());
+    }
+}
 
 Runner addProbeCommand(CLI::App& app);
 Runner addRenderCommand(CLI::App& app);

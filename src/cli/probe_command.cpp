@@ -36,8 +36,8 @@ struct ProbeOptions {
     int mcMaxDepth = 8;
     int mcInitialDepth = 0;
     uint64_t seed = 0;
-    bool samplesGiven = false;
     bool errorBound = false;
+    const CLI::App* command = nullptr;
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -74,51 +74,43 @@ double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
 }
 
 int runProbe(const ProbeOptions& opt) {
-    const Method method = parseMethod(opt.method, "--method");
-    if (method != Method::Aci && !isMonteCarlo(method))
-        throw InputError("", "--method",
-                         "probe supports aci, reference, mc-adaptive, mc-solid-angle and "
-                         "mc-ratio, got '" + opt.method + "'");
-    if (opt.samplesGiven && !isMonteCarlo(method))
-        throw InputError("", "--samples", "only applies to the Monte Carlo methods");
-    // The same ranges as render and batch manifests (contour_integrator.h, monte_carlo.h).
-    auto requireRange = [](const std::string& flag, int value, IntRange r) {
-        if (!r.holds(value)) {
-            throw InputError("", flag,
-                             "must be in [" + std::to_string(r.lo) + ", " + std::to_string(r.hi) +
-                                 "], got " + std::to_string(value));
-        }
-    };
-    requireRange("--aci-grid", opt.grid, kAciGridRange);
-    requireRange("--aci-steps", opt.steps, kAciStepsRange);
-    if (opt.samplesGiven) requireRange("--samples", opt.samples, kMcSamplesRange);
-    requireRange("--mc-max-depth", opt.mcMaxDepth, kMcMaxDepthRange);
-    requireRange("--mc-initial-depth", opt.mcInitialDepth, kMcInitialDepthRange);
-    const AciMode aciMode = parseAciMode(opt.aciMode, "--aci-mode");
-    if (!(opt.mcThreshold > 0.0) || !std::isfinite(opt.mcThreshold))
-        throw InputError("", "--mc-threshold", "must be a finite number > 0");
-    if ((static_cast<long>(opt.grid) << (opt.steps + 1)) > kMaxLatticeUnits)
-        throw InputError("", "--aci-grid/--aci-steps",
-                         "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
-                             " (the shared sample lattice would not fit in memory)");
+    // The settings as render's and a manifest's (render_settings.h): the same names, ranges
+    // and checks; only aci-pixel, a renderer's pipeline, has no meaning for points.
+    RenderSettings rs;
+    nlohmann::json given = nlohmann::json::object();
+    const CLI::App& cmd = *opt.command;
+    putGiven(given, cmd, "method", opt.method);
+    putGiven(given, cmd, "aci_grid", opt.grid);
+    putGiven(given, cmd, "aci_steps", opt.steps);
+    putGiven(given, cmd, "aci_mode", opt.aciMode);
+    putGiven(given, cmd, "samples", opt.samples);
+    putGiven(given, cmd, "mc_threshold", opt.mcThreshold);
+    putGiven(given, cmd, "mc_max_depth", opt.mcMaxDepth);
+    putGiven(given, cmd, "mc_initial_depth", opt.mcInitialDepth);
+    putGiven(given, cmd, "seed", opt.seed);
+    withFlagNames([&] {
+        rs.readJson(given);
+        if (rs.method == Method::AciPixel)
+            throw InputError("", "method",
+                             "probe supports aci, reference, mc-adaptive, mc-solid-angle and "
+                             "mc-ratio, got '" + opt.method + "'");
+        rs.validate();
+    });
+    const Method method = rs.method;
     const Scene scene = loadScene(opt.scene);
     const size_t lightIndex = scene.lightIndex(opt.light);
     const RectLight& light = scene.lights[lightIndex];
     const Occluder occluder = scene.makeOccluder();
     Occluder::Query query = occluder.makeQuery();
-    AciSettings settings;
-    settings.grid = opt.grid;
-    settings.steps = opt.steps;
-    applyAciMode(settings, aciMode);
+    AciSettings settings = rs.aci;
+    settings.gradient = true;  // the CSV's dF columns
+    settings.errorBound = true;
     // Sensor points may sit on an obstacle's surface: rays start 1.5 voxels off a level set's
     // surface, a hair off anything else (receiverRayOffset, set for each point below).
     settings.rayOffset = 1e-9;
     ContourIntegrator integrator(settings);
-    McSettings mc;
-    mc.samples = opt.samples > 0 ? opt.samples : defaultSamples(method);
-    mc.threshold = opt.mcThreshold;
-    mc.maxDepth = opt.mcMaxDepth;
-    mc.initialDepth = opt.mcInitialDepth;
+    McSettings mc = rs.mc;
+    if (mc.samples == 0) mc.samples = defaultSamples(method);
     mc.rayOffset = settings.rayOffset;
 
     // Read everything first, so that bad input produces no partial output.
@@ -159,7 +151,7 @@ int runProbe(const ProbeOptions& opt) {
     for (size_t i = 0; i < points.size(); ++i) {
         const Receiver& r = points[i];
         // Seeded by the point's position in the input, so a run does not depend on anything else.
-        mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), opt.seed);
+        mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), rs.mc.seed);
         mc.rayOffset = settings.rayOffset = receiverRayOffset(occluder, r.point, 1e-9);
         integrator.setSettings(settings);
         const Estimate e = estimate(method, r, light, query, integrator, mc);
@@ -191,18 +183,15 @@ Runner addProbeCommand(CLI::App& app) {
     sub->add_option("--samples", opt->samples,
                     "Monte Carlo: shadow rays per point (mc-adaptive: at most); default 1024 "
                     "for reference and mc-adaptive, 16 for mc-solid-angle and mc-ratio")
-        ->check(CLI::Range(1, 1 << 20))
-        ->each([opt](const std::string&) { opt->samplesGiven = true; });
+        ;
     sub->add_option("--mc-threshold", opt->mcThreshold,
                     "mc-adaptive: split a light cell while the standard error of its "
                     "contribution exceeds this fraction of the unoccluded form factor")
         ->capture_default_str();
     sub->add_option("--mc-max-depth", opt->mcMaxDepth, "mc-adaptive: deepest subdivision level")
-        ->check(CLI::Range(0, 24))
         ->capture_default_str();
     sub->add_option("--mc-initial-depth", opt->mcInitialDepth,
                     "mc-adaptive: start from a 2^d x 2^d grid of light cells (4 rays each)")
-        ->check(CLI::Range(0, 8))
         ->capture_default_str();
     sub->add_option("--seed", opt->seed, "Monte Carlo: seed mixed with each point's line index")
         ->capture_default_str();
@@ -212,16 +201,15 @@ Runner addProbeCommand(CLI::App& app) {
                   "default tangent mode's certified coverage; nan for the paper and arcs modes "
                   "and the Monte Carlo methods)");
     sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-32)")
-        ->check(CLI::Range(1, 64))
         ->capture_default_str();
     sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (1-12)")
-        ->check(CLI::Range(0, 12))
         ->capture_default_str();
     sub->add_option("--aci-mode", opt->aciMode,
                     "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the "
                     "midline check), tangent (distance-guided Newton dichotomy and tangent arcs; "
                     "see docs/estimator.md)")
         ->capture_default_str();
+    opt->command = sub;
     return [opt] { return runProbe(*opt); };
 }
 

@@ -53,14 +53,6 @@ struct RenderOptions {
     bool given(const char* flag) const { return command && command->count(flag) > 0; }
 };
 
-void requireRange(const std::string& flag, int value, int lo, int hi) {
-    if (value < lo || value > hi) {
-        throw InputError("", flag,
-                         "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                             "], got " + std::to_string(value));
-    }
-}
-
 // Progress on stderr once a render has taken more than a second: rows done, rate, time left.
 // On a terminal one line is rewritten in place; in a log, a line every five seconds.
 class ProgressReporter {
@@ -108,11 +100,9 @@ ImageMetadata metadataFor(const RenderOptions& o, const RenderSettings& settings
     ImageMetadata m = {
         {"ImageDescription", "penumbra render of " + o.scene},
         {"penumbra:scene", o.scene},
-        {"penumbra:method", st.method},
-        {"penumbra:aci_grid", std::to_string(st.aciGrid)},
-        {"penumbra:aci_steps", std::to_string(st.aciSteps)},
-        {"penumbra:aci_mode", st.aciMode},
-        {"penumbra:max_span", std::to_string(o.maxSpan)},
+    };
+    for (auto& item : settingsMetadata(settings)) m.push_back(std::move(item));
+    const ImageMetadata counts = {
         {"penumbra:threads", std::to_string(st.threads)},
         {"penumbra:seconds", formatNumber(st.seconds)},
         {"penumbra:viewing_rays", std::to_string(st.viewingRays)},
@@ -124,16 +114,11 @@ ImageMetadata metadataFor(const RenderOptions& o, const RenderSettings& settings
         {"penumbra:aci_evaluations", std::to_string(st.aciEvaluations)},
         {"penumbra:restarts", std::to_string(st.restarts)},
     };
-    if (isMonteCarlo(settings.method)) {
-        const int samples =
-            settings.mc.samples > 0 ? settings.mc.samples : defaultSamples(settings.method);
-        m.push_back({"penumbra:samples", std::to_string(samples)});
-        m.push_back({"penumbra:seed", std::to_string(settings.mc.seed)});
-        if (settings.method == Method::McAdaptive) {
-            m.push_back({"penumbra:mc_threshold", formatNumber(settings.mc.threshold)});
-            m.push_back({"penumbra:mc_max_depth", std::to_string(settings.mc.maxDepth)});
-            m.push_back({"penumbra:mc_initial_depth", std::to_string(settings.mc.initialDepth)});
-        }
+    for (const auto& item : counts) {
+        // The thread count given is the settings'; the one used (maybe the default) wins.
+        m.erase(std::remove_if(m.begin(), m.end(), [&](const auto& e) { return e.first == item.first; }),
+                m.end());
+        m.push_back(item);
     }
     return m;
 }
@@ -165,37 +150,30 @@ void writeScalarAov(OutputSet& outputs, const std::string& path, const std::stri
 int runRender(const RenderOptions& o) {
     // Every option is checked before the (possibly slow) scene loading.
     RenderSettings settings;
-    settings.method = parseMethod(o.method, "--method");
-    // Unset, these take their defaults (every hardware thread, the camera's size); given, they
-    // must be positive.
-    if (o.given("--threads")) requireRange("--threads", o.threads, 1, 1024);
-    if (o.given("--width")) requireRange("--width", o.width, 1, 65536);
-    if (o.given("--height")) requireRange("--height", o.height, 1, 65536);
+    nlohmann::json given = nlohmann::json::object();
+    const CLI::App& cmd = *o.command;
+    putGiven(given, cmd, "method", o.method);
+    putGiven(given, cmd, "width", o.width);
+    putGiven(given, cmd, "height", o.height);
+    putGiven(given, cmd, "threads", o.threads);
+    putGiven(given, cmd, "aci_grid", o.aciGrid);
+    putGiven(given, cmd, "aci_steps", o.aciSteps);
+    putGiven(given, cmd, "aci_mode", o.aciMode);
+    putGiven(given, cmd, "max_span", o.maxSpan);
+    putGiven(given, cmd, "samples", o.samples);
+    putGiven(given, cmd, "mc_threshold", o.mcThreshold);
+    putGiven(given, cmd, "mc_max_depth", o.mcMaxDepth);
+    putGiven(given, cmd, "mc_initial_depth", o.mcInitialDepth);
+    putGiven(given, cmd, "seed", o.seed);
+    putGiven(given, cmd, "volume_cache", o.volumeCache);
+    putGiven(given, cmd, "volume_samples", o.volumeSamples);
+    putGiven(given, cmd, "hide_volumes", o.hideVolumes);
+    withFlagNames([&] {
+        settings.readJson(given);
+        settings.validate();
+    });
     if (o.given("--width") && o.given("--height")) {
         checkRenderMemory(o.width, o.height, "", "--width/--height");  // before loading
-    }
-    requireRange("--aci-grid", o.aciGrid, kAciGridRange.lo, kAciGridRange.hi);
-    requireRange("--aci-steps", o.aciSteps, kAciStepsRange.lo, kAciStepsRange.hi);
-    const AciMode aciMode = parseAciMode(o.aciMode, "--aci-mode");
-    requireRange("--max-span", o.maxSpan, kMaxSpanRange.lo, kMaxSpanRange.hi);
-    if (o.given("--samples")) {
-        if (!isMonteCarlo(settings.method)) {
-            throw InputError("", "--samples",
-                             "only applies to the Monte Carlo methods (reference, mc-adaptive, "
-                             "mc-solid-angle, mc-ratio)");
-        }
-        requireRange("--samples", o.samples, kMcSamplesRange.lo, kMcSamplesRange.hi);
-    }
-    if (!(o.mcThreshold > 0.0) || !std::isfinite(o.mcThreshold)) {
-        throw InputError("", "--mc-threshold", "must be a finite number > 0");
-    }
-    requireRange("--mc-max-depth", o.mcMaxDepth, kMcMaxDepthRange.lo, kMcMaxDepthRange.hi);
-    requireRange("--mc-initial-depth", o.mcInitialDepth, kMcInitialDepthRange.lo,
-                 kMcInitialDepthRange.hi);
-    if ((long(o.aciGrid) << (o.aciSteps + 1)) > kMaxLatticeUnits) {
-        throw InputError("", "--aci-grid/--aci-steps",
-                         "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
-                             " (the shared sample lattice would not fit in memory)");
     }
     imageFormatFor(o.output, "-o");
     if (!o.aovRays.empty()) imageFormatFor(o.aovRays, "--aov-rays");
@@ -203,25 +181,8 @@ int runRender(const RenderOptions& o) {
     if (!o.aovGradient.empty()) imageFormatFor(o.aovGradient, "--aov-gradient");
     if (!o.aovMask.empty()) imageFormatFor(o.aovMask, "--aov-mask");
     if (!o.aovErrorBound.empty()) imageFormatFor(o.aovErrorBound, "--aov-error-bound");
-    settings.threads = o.threads;
-    settings.width = o.width;
-    settings.height = o.height;
-    settings.aci.grid = o.aciGrid;
-    settings.aci.steps = o.aciSteps;
-    applyAciMode(settings.aci, aciMode);
     settings.aci.gradient = !o.aovGradient.empty();
     settings.aci.errorBound = !o.aovErrorBound.empty();
-    settings.maxSpan = o.maxSpan;
-    requireRange("--volume-cache", o.volumeCache, kVolumeCacheRange.lo, kVolumeCacheRange.hi);
-    requireRange("--volume-samples", o.volumeSamples, kVolumeSamplesRange.lo, kVolumeSamplesRange.hi);
-    settings.volumeCache = o.volumeCache;
-    settings.volumeSamples = o.volumeSamples;
-    settings.volumesVisible = !o.hideVolumes;
-    settings.mc.samples = o.samples;
-    settings.mc.threshold = o.mcThreshold;
-    settings.mc.maxDepth = o.mcMaxDepth;
-    settings.mc.initialDepth = o.mcInitialDepth;
-    settings.mc.seed = o.seed;
 
     // Every file this run writes, checked against each other and the scene before any work,
     // written to temporaries and renamed together at the end: a failed run changes nothing.

@@ -25,6 +25,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "penumbra/compare.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
@@ -41,10 +43,9 @@ namespace penumbra::python {
 namespace {
 
 // ---------------------------------------------------------------------------------------------
-// Settings by keyword: the names and ranges of batch manifests (batch.cpp) and the CLI's flags.
-
-constexpr IntRange kThreadsRange{1, 1024};     // render --threads
-constexpr IntRange kImageSizeRange{1, 65536};  // render --width, --height; manifests' width
+// Settings by keyword: the keys of the JSON model (render_settings.h), which batch manifests
+// use and the CLI's flags spell with dashes. Python types are checked here (TypeError); the
+// values then go through RenderSettings::readJson and validate, as a manifest's do.
 
 // Every keyword a settings dict may hold; each function accepts a subset.
 const std::vector<std::string> kProbeKeys = {"aci_grid",         "aci_steps",    "aci_mode",
@@ -54,15 +55,6 @@ const std::vector<std::string> kRenderKeys = {
     "aci_grid",     "aci_steps",      "aci_mode",         "max_span", "samples",
     "mc_threshold", "mc_max_depth",   "mc_initial_depth", "seed",     "threads",
     "volume_cache", "volume_samples", "hide_volumes"};
-
-struct Options {
-    std::optional<int> aciGrid, aciSteps, maxSpan, samples, mcMaxDepth, mcInitialDepth, threads;
-    std::optional<int> volumeCache, volumeSamples;
-    std::optional<bool> hideVolumes;
-    std::optional<double> mcThreshold;
-    std::optional<uint64_t> seed;
-    std::optional<std::string> aciMode;
-};
 
 std::string joined(const std::vector<std::string>& names) {
     std::string s;
@@ -82,28 +74,44 @@ py::int_ asInteger(py::handle v, const std::string& key) {
     return i;
 }
 
-long long readInteger(py::handle v, const std::string& key) {
+// A keyword's value as JSON, its Python type checked.
+nlohmann::json jsonValue(py::handle v, const std::string& key) {
+    if (key == "hide_volumes") {
+        if (!PyBool_Check(v.ptr())) throw py::type_error(key + ": must be a bool, got " + typeName(v));
+        return v.ptr() == Py_True;
+    }
+    if (key == "aci_mode" || key == "method") {
+        if (!py::isinstance<py::str>(v)) throw py::type_error(key + ": must be a str, got " + typeName(v));
+        return std::string(py::str(v));
+    }
+    if (key == "mc_threshold") {
+        if (PyBool_Check(v.ptr()) || !PyNumber_Check(v.ptr())) {
+            throw py::type_error(key + ": must be a number, got " + typeName(v));
+        }
+        return double(py::float_(py::reinterpret_borrow<py::object>(v)));
+    }
     const py::int_ i = asInteger(v, key);
+    if (key == "seed") {  // the CLI's --seed: any 64-bit unsigned integer
+        const unsigned long long x = PyLong_AsUnsignedLongLong(i.ptr());
+        if (PyErr_Occurred()) {
+            PyErr_Clear();
+            throw InputError("", key,
+                             "must be an integer in [0, 2^64 - 1], got " + py::repr(i).cast<std::string>());
+        }
+        return uint64_t(x);
+    }
     int overflow = 0;
     const long long x = PyLong_AsLongLongAndOverflow(i.ptr(), &overflow);
-    if (overflow != 0)
-        throw InputError("", key, "is out of range, got " + py::repr(i).cast<std::string>());
+    if (overflow != 0) throw InputError("", key, "is out of range, got " + py::repr(i).cast<std::string>());
     return x;
 }
 
-int readInt(py::handle v, const std::string& key, IntRange r) {
-    const long long x = readInteger(v, key);
-    if (x < r.lo || x > r.hi) {
-        throw InputError("", key,
-                         "must be in [" + std::to_string(r.lo) + ", " + std::to_string(r.hi) +
-                             "], got " + std::to_string(x));
-    }
-    return int(x);
-}
-
-Options readOptions(const py::kwargs& kw, const std::vector<std::string>& allowed,
-                    const char* function) {
-    Options o;
+// Reads the keywords of `kw` (each allowed for `function`) into `settings`, checked as the
+// model checks them. The thread count (not a render setting of the model's here: Python keeps
+// one arena per count) is returned through `threads`.
+void readSettings(const py::kwargs& kw, const std::vector<std::string>& allowed, const char* function,
+                  RenderSettings& settings, int& threads) {
+    nlohmann::json given = nlohmann::json::object();
     for (auto item : kw) {
         const std::string key = py::str(item.first);
         py::handle v = item.second;
@@ -116,81 +124,12 @@ Options readOptions(const py::kwargs& kw, const std::vector<std::string>& allowe
                                  "' (expected one of: " + joined(allowed) + ")");
         }
         if (v.is_none()) continue;  // None: the default, as if not given
-        if (key == "aci_grid") {
-            o.aciGrid = readInt(v, key, kAciGridRange);
-        } else if (key == "aci_steps") {
-            o.aciSteps = readInt(v, key, kAciStepsRange);
-        } else if (key == "max_span") {
-            o.maxSpan = readInt(v, key, kMaxSpanRange);
-        } else if (key == "samples") {
-            o.samples = readInt(v, key, kMcSamplesRange);
-        } else if (key == "mc_max_depth") {
-            o.mcMaxDepth = readInt(v, key, kMcMaxDepthRange);
-        } else if (key == "mc_initial_depth") {
-            o.mcInitialDepth = readInt(v, key, kMcInitialDepthRange);
-        } else if (key == "threads") {
-            o.threads = readInt(v, key, kThreadsRange);
-        } else if (key == "volume_cache") {
-            o.volumeCache = readInt(v, key, kVolumeCacheRange);
-        } else if (key == "volume_samples") {
-            o.volumeSamples = readInt(v, key, kVolumeSamplesRange);
-        } else if (key == "hide_volumes") {
-            if (!PyBool_Check(v.ptr())) {
-                throw py::type_error(key + ": must be a bool, got " + typeName(v));
-            }
-            o.hideVolumes = v.ptr() == Py_True;
-        } else if (key == "aci_mode") {
-            if (!py::isinstance<py::str>(v)) {
-                throw py::type_error(key + ": must be a str, got " + typeName(v));
-            }
-            o.aciMode = py::str(v);
-        } else if (key == "mc_threshold") {
-            if (PyBool_Check(v.ptr()) || !PyNumber_Check(v.ptr())) {
-                throw py::type_error(key + ": must be a number, got " + typeName(v));
-            }
-            const double t = py::float_(py::reinterpret_borrow<py::object>(v));
-            if (!(t > 0.0) || !std::isfinite(t)) {
-                throw InputError("", key, "must be a finite number > 0");
-            }
-            o.mcThreshold = t;
-        } else if (key == "seed") {  // the CLI's --seed: any 64-bit unsigned integer
-            const py::int_ i = asInteger(v, key);
-            const unsigned long long s = PyLong_AsUnsignedLongLong(i.ptr());
-            if (PyErr_Occurred()) {
-                PyErr_Clear();
-                throw InputError(
-                    "", key,
-                    "must be an integer in [0, 2^64 - 1], got " + py::repr(i).cast<std::string>());
-            }
-            o.seed = uint64_t(s);
-        }
+        given[key] = jsonValue(v, key);
     }
-    return o;
-}
-
-// The checks the CLI makes beyond single ranges (probe_command.cpp, render_command.cpp).
-void checkCombination(const Options& o, Method method, const AciSettings& aci) {
-    if (o.samples && !isMonteCarlo(method)) {
-        throw InputError("", "samples",
-                         "only applies to the Monte Carlo methods (reference, mc-adaptive, "
-                         "mc-solid-angle, mc-ratio)");
-    }
-    if ((static_cast<long>(aci.grid) << (aci.steps + 1)) > kMaxLatticeUnits) {
-        throw InputError("", "aci_grid/aci_steps",
-                         "grid x 2^(steps+1) must be at most " + std::to_string(kMaxLatticeUnits) +
-                             " (the shared sample lattice would not fit in memory)");
-    }
-}
-
-void applyOptions(const Options& o, AciSettings& aci, McSettings& mc) {
-    aci.grid = o.aciGrid.value_or(aci.grid);
-    aci.steps = o.aciSteps.value_or(aci.steps);
-    applyAciMode(aci, parseAciMode(o.aciMode.value_or("tangent"), "aci_mode"));
-    mc.samples = o.samples.value_or(mc.samples);
-    mc.threshold = o.mcThreshold.value_or(mc.threshold);
-    mc.maxDepth = o.mcMaxDepth.value_or(mc.maxDepth);
-    mc.initialDepth = o.mcInitialDepth.value_or(mc.initialDepth);
-    mc.seed = o.seed.value_or(mc.seed);
+    settings.readJson(given);
+    threads = settings.threads > 0 ? settings.threads : 0;
+    settings.threads = 0;
+    settings.validate();
 }
 
 std::string pathOf(py::handle p) { return py::str(py::module_::import("os").attr("fspath")(p)); }
@@ -354,12 +293,14 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
                          "mc-ratio, got '" +
                              methodName + "'");
     }
-    const Options o = readOptions(kw, kProbeKeys, "probe");
-    AciSettings settings;
-    McSettings mc;
-    mc.samples = 0;
-    applyOptions(o, settings, mc);
-    checkCombination(o, method, settings);
+    RenderSettings rs;
+    rs.method = method;
+    int threadsAsked = 0;
+    readSettings(kw, kProbeKeys, "probe", rs, threadsAsked);
+    AciSettings settings = rs.aci;
+    settings.gradient = true;  // the gradient column, as the CLI's probe
+    settings.errorBound = true;
+    McSettings mc = rs.mc;
     if (mc.samples == 0) mc.samples = defaultSamples(method);
     const uint64_t userSeed = mc.seed;
 
@@ -414,7 +355,7 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
         ContourIntegrator aci;
     };
     tbb::enumerable_thread_specific<std::unique_ptr<Worker>> workers;
-    tbb::task_arena& arena = arenaFor(o.threads.value_or(0));
+    tbb::task_arena& arena = arenaFor(threadsAsked);
     const int threads = arena.max_concurrency();
     auto evaluate = [&](const tbb::blocked_range<size_t>& range) {
         std::unique_ptr<Worker>& w = workers.local();
@@ -588,20 +529,17 @@ py::tuple renderScene(const PyScene& self, py::handle width, py::handle height,
                       const std::string& methodName, const py::kwargs& kw) {
     RenderSettings settings;
     settings.method = parseMethod(methodName, "method");
-    const Options o = readOptions(kw, kRenderKeys, "render");
-    if (!width.is_none()) settings.width = readInt(width, "width", kImageSizeRange);
-    if (!height.is_none()) settings.height = readInt(height, "height", kImageSizeRange);
+    nlohmann::json size = nlohmann::json::object();
+    if (!width.is_none()) size["width"] = jsonValue(width, "width");
+    if (!height.is_none()) size["height"] = jsonValue(height, "height");
+    settings.readJson(size);
     if (settings.width > 0 && settings.height > 0) {
         checkRenderMemory(settings.width, settings.height, "", "width/height");
     }
-    applyOptions(o, settings.aci, settings.mc);
-    checkCombination(o, settings.method, settings.aci);
-    settings.maxSpan = o.maxSpan.value_or(settings.maxSpan);
-    settings.volumeCache = o.volumeCache.value_or(settings.volumeCache);
-    settings.volumeSamples = o.volumeSamples.value_or(settings.volumeSamples);
-    settings.volumesVisible = !o.hideVolumes.value_or(false);
+    int threads = 0;
+    readSettings(kw, kRenderKeys, "render", settings, threads);
     // render() in the kept arena (threads < 0: the caller's), not one of its own per call.
-    tbb::task_arena& arena = arenaFor(o.threads.value_or(0));
+    tbb::task_arena& arena = arenaFor(threads);
     settings.threads = -1;
     // As `penumbra render` without AOV files: no gradient, no error bound.
     settings.aci.gradient = false;

@@ -100,7 +100,7 @@ def test_unknown_and_misplaced_settings(scene):
         scene.render(8, 8, threads=True)
     with pytest.raises(penumbra.InputError, match="^samples: only applies to the Monte Carlo"):
         scene.probe(pts, nrm, samples=16)
-    with pytest.raises(penumbra.InputError, match="^aci_grid/aci_steps: grid x 2"):
+    with pytest.raises(penumbra.InputError, match="^aci_steps: aci_grid x 2"):
         scene.probe(pts, nrm, aci_grid=32, aci_steps=12)
     with pytest.raises(penumbra.InputError, match="^method: probe supports aci"):
         scene.probe(pts, nrm, method="aci-pixel")

@@ -87,6 +87,20 @@ inline double lambertPolygon(const std::vector<Vec3>& poly, const Vec3& m, const
     return sum / kTwoPi;
 }
 
+/// The rotation by `angle` radians about `axis` (any nonzero length), by Rodrigues' formula.
+inline Mat3 rotation(const Vec3& axis, double angle) {
+    const Vec3 k = glm::normalize(axis);
+    const double c = std::cos(angle), s = std::sin(angle);
+    Mat3 r(0.0);
+    for (int j = 0; j < 3; ++j) {
+        Vec3 e(0.0);
+        e[j] = 1.0;
+        // Rodrigues' formula applied to the basis vector e_j gives column j.
+        r[j] = e * c + glm::cross(k, e) * s + k * glm::dot(k, e) * (1.0 - c);
+    }
+    return r;
+}
+
 /// Affine coordinates (s, t) of a point of the light's plane: p = corner + s edgeU + t edgeV.
 inline Vec2 lightCoords(const Vec3& p, const Vec3& corner, const Vec3& edgeU, const Vec3& edgeV) {
     const Vec3 d = p - corner;

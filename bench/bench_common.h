@@ -1,0 +1,92 @@
+// Shared by the benchmarks (bench_*.cpp): walking the command line, the render settings every
+// method starts from, and how an error ends a benchmark. A header, not a .cpp: every .cpp in
+// bench/ is built as a benchmark of its own.
+#pragma once
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "penumbra/error.h"
+#include "penumbra/renderer.h"
+
+namespace bench {
+
+/// Prints "PROGRAM: MESSAGE" on stderr and exits with 2: a benchmark's bad command line.
+[[noreturn]] inline void failUsage(const char* program, const std::string& message) {
+    std::fprintf(stderr, "%s: %s\n", program, message.c_str());
+    std::exit(2);
+}
+
+/// One option of a benchmark: its name and what it sets. An int, double or string target takes
+/// the next word (std::atoi, std::atof, as is); a flag takes none and runs its action.
+struct Option {
+    Option(std::string n, int* target)
+        : name(std::move(n)),
+          set([target](const std::string& v) { *target = std::atoi(v.c_str()); }) {}
+    Option(std::string n, double* target)
+        : name(std::move(n)),
+          set([target](const std::string& v) { *target = std::atof(v.c_str()); }) {}
+    Option(std::string n, std::string* target)
+        : name(std::move(n)), set([target](const std::string& v) { *target = v; }) {}
+    Option(std::string n, std::function<void()> action)
+        : name(std::move(n)), flag(std::move(action)) {}
+
+    std::string name;
+    std::function<void(const std::string&)> set;  // empty for a flag
+    std::function<void()> flag;
+};
+
+/// Reads argv against `options`. A word that is no option goes to `positional` if there is one
+/// and the word does not start with '-'. Errors, as failUsage: "OPTION needs a value",
+/// "unknown option WORD".
+inline void parseOptions(const char* program, int argc, char** argv,
+                         const std::vector<Option>& options, std::string* positional = nullptr) {
+    for (int i = 1; i < argc; ++i) {
+        const std::string word = argv[i];
+        const auto option = std::find_if(options.begin(), options.end(),
+                                         [&](const Option& o) { return o.name == word; });
+        if (option == options.end()) {
+            if (!positional || word.empty() || word[0] == '-')
+                failUsage(program, "unknown option " + word);
+            *positional = word;
+        } else if (option->flag) {
+            option->flag();
+        } else {
+            if (i + 1 >= argc) failUsage(program, word + " needs a value");
+            option->set(argv[++i]);
+        }
+    }
+}
+
+/// Settings for `method` on a size x size image with `threads` threads; everything else default.
+inline penumbra::RenderSettings squareSettings(penumbra::Method method, int size, int threads) {
+    penumbra::RenderSettings rs;
+    rs.method = method;
+    rs.width = size;
+    rs.height = size;
+    rs.threads = threads;
+    return rs;
+}
+
+/// Call in a benchmark's `catch (...)`: prints "PROGRAM: WHAT" on stderr and returns the exit
+/// code, 2 for an InputError (a bad scene or option), 1 for any other std::exception. Anything
+/// else is not caught.
+inline int reportException(const char* program) {
+    try {
+        throw;
+    } catch (const penumbra::InputError& e) {
+        std::fprintf(stderr, "%s: %s\n", program, e.what());
+        return 2;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "%s: %s\n", program, e.what());
+        return 1;
+    }
+}
+
+}  // namespace bench
