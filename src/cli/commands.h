@@ -17,15 +17,8 @@ namespace penumbra::cli {
 
 using Runner = std::function<int()>;
 
-// Settings flags are the keys of the JSON model (render_settings.h) with dashes: a command puts
-// the flags it was given into a JSON object under their keys, and the settings read it as a
-// batch manifest's are read. Errors about a key are reported against its flag.
-
-/// `value` under `key` in `given` when the flag of `key` was on the command line.
-template <class T>
-void putGiven(nlohmann::json& given, const CLI::App& cmd, const std::string& key, const T& value) {
-    if (cmd.count(flagOfKey(key)) > 0) given[key] = value;
-}
+// Settings flags are the keys of the JSON model (render_settings.h) with dashes
+// (settings_flags.h); errors about a key are reported against its flag.
 
 /// Runs `body` (reading or checking settings); an InputError about a key of the model is
 /// thrown again about its flag.

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "cli/commands.h"
+#include "cli/settings_flags.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
 #include "penumbra/monte_carlo.h"
@@ -26,18 +27,9 @@ namespace {
 
 struct ProbeOptions {
     std::string scene;
-    std::string method = "aci";
     std::string light;
-    int grid = 2;
-    int steps = 5;
-    std::string aciMode = "tangent";
-    int samples = 0;  // 0: the method's default (renderer.h's defaultSamples)
-    double mcThreshold = 0.01;
-    int mcMaxDepth = 8;
-    int mcInitialDepth = 0;
-    uint64_t seed = 0;
     bool errorBound = false;
-    const CLI::App* command = nullptr;
+    std::unique_ptr<SettingsFlags> settings;  // method, ACI and Monte Carlo settings
 };
 
 std::vector<std::string> splitCsv(const std::string& line) {
@@ -76,26 +68,11 @@ double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
 int runProbe(const ProbeOptions& opt) {
     // The settings as render's and a manifest's (render_settings.h): the same names, ranges
     // and checks; only aci-pixel, a renderer's pipeline, has no meaning for points.
-    RenderSettings rs;
-    nlohmann::json given = nlohmann::json::object();
-    const CLI::App& cmd = *opt.command;
-    putGiven(given, cmd, "method", opt.method);
-    putGiven(given, cmd, "aci_grid", opt.grid);
-    putGiven(given, cmd, "aci_steps", opt.steps);
-    putGiven(given, cmd, "aci_mode", opt.aciMode);
-    putGiven(given, cmd, "samples", opt.samples);
-    putGiven(given, cmd, "mc_threshold", opt.mcThreshold);
-    putGiven(given, cmd, "mc_max_depth", opt.mcMaxDepth);
-    putGiven(given, cmd, "mc_initial_depth", opt.mcInitialDepth);
-    putGiven(given, cmd, "seed", opt.seed);
-    withFlagNames([&] {
-        rs.readJson(given);
-        if (rs.method == Method::AciPixel)
-            throw InputError("", "method",
-                             "probe supports aci, reference, mc-adaptive, mc-solid-angle and "
-                             "mc-ratio, got '" + opt.method + "'");
-        rs.validate();
-    });
+    const RenderSettings rs = opt.settings->read();
+    if (rs.method == Method::AciPixel)
+        throw InputError("", "--method",
+                         "probe supports aci, reference, mc-adaptive, mc-solid-angle and "
+                         "mc-ratio, got 'aci-pixel'");
     const Method method = rs.method;
     const Scene scene = loadScene(opt.scene);
     const size_t lightIndex = scene.lightIndex(opt.light);
@@ -175,41 +152,23 @@ Runner addProbeCommand(CLI::App& app) {
         "Form factor and its gradient at sensor points: CSV x,y,z,nx,ny,nz on stdin, CSV "
         "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays on stdout");
     sub->add_option("scene", opt->scene, "Scene file (JSON)")->required();
-    sub->add_option("--method", opt->method,
-                    "Estimator: aci (approximate contour integration), or the Monte Carlo "
-                    "reference, mc-adaptive, mc-solid-angle, mc-ratio (no gradient: dF columns "
-                    "are 0)")
-        ->capture_default_str();
-    sub->add_option("--samples", opt->samples,
-                    "Monte Carlo: shadow rays per point (mc-adaptive: at most); default 1024 "
-                    "for reference and mc-adaptive, 16 for mc-solid-angle and mc-ratio")
-        ;
-    sub->add_option("--mc-threshold", opt->mcThreshold,
-                    "mc-adaptive: split a light cell while the standard error of its "
-                    "contribution exceeds this fraction of the unoccluded form factor")
-        ->capture_default_str();
-    sub->add_option("--mc-max-depth", opt->mcMaxDepth, "mc-adaptive: deepest subdivision level")
-        ->capture_default_str();
-    sub->add_option("--mc-initial-depth", opt->mcInitialDepth,
-                    "mc-adaptive: start from a 2^d x 2^d grid of light cells (4 rays each)")
-        ->capture_default_str();
-    sub->add_option("--seed", opt->seed, "Monte Carlo: seed mixed with each point's line index")
-        ->capture_default_str();
     sub->add_option("--light", opt->light, "Name of the light (default: the only light)");
     sub->add_flag("--error-bound", opt->errorBound,
                   "Append a column error_bound: the estimator's bound on |F - F_exact| (the "
                   "default tangent mode's certified coverage; nan for the paper and arcs modes "
                   "and the Monte Carlo methods)");
-    sub->add_option("--aci-grid", opt->grid, "First-level squares per light edge (1-32)")
-        ->capture_default_str();
-    sub->add_option("--aci-steps", opt->steps, "Dichotomy steps along a crossed side (1-12)")
-        ->capture_default_str();
-    sub->add_option("--aci-mode", opt->aciMode,
-                    "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the "
-                    "midline check), tangent (distance-guided Newton dichotomy and tangent arcs; "
-                    "see docs/estimator.md)")
-        ->capture_default_str();
-    opt->command = sub;
+    opt->settings = std::make_unique<SettingsFlags>(
+        sub,
+        std::vector<std::string>{"method", "aci_grid", "aci_steps", "aci_mode", "samples",
+                                 "mc_threshold", "mc_max_depth", "mc_initial_depth", "seed"},
+        std::map<std::string, std::string>{
+            {"method",
+             "Estimator: aci (approximate contour integration), or the Monte Carlo reference, "
+             "mc-adaptive, mc-solid-angle, mc-ratio (no gradient: dF columns are 0)"},
+            {"samples",
+             "Monte Carlo: shadow rays per point (mc-adaptive: at most); default 1024 for "
+             "reference and mc-adaptive, 16 for mc-solid-angle and mc-ratio"},
+            {"seed", "Monte Carlo: seed mixed with each point's line index"}});
     return [opt] { return runProbe(*opt); };
 }
 

@@ -15,6 +15,7 @@
 #include <string>
 
 #include "cli/commands.h"
+#include "cli/settings_flags.h"
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
 #include "penumbra/output_files.h"
@@ -28,29 +29,12 @@ namespace {
 struct RenderOptions {
     std::string scene;
     std::string output;
-    std::string method = "aci";
-    int threads = 0;
-    int width = 0;
-    int height = 0;
-    int aciGrid = 2;
-    int aciSteps = 5;
-    std::string aciMode = "tangent";
-    int maxSpan = 32;
-    int samples = 0;             // 0: the method's default (defaultSamples)
-    double mcThreshold = 0.01;
-    int mcMaxDepth = 8;
-    int mcInitialDepth = 0;
-    uint64_t seed = 0;
     std::string stats;
     std::string cache;  // level-set cache directory ("" none)
-    int volumeCache = 24;
-    int volumeSamples = 64;
-    bool hideVolumes = false;
     std::string aovRays, aovFormFactor, aovGradient, aovMask, aovErrorBound;
     bool quiet = false;
     bool verbose = false;
-    const CLI::App* command = nullptr;  // to tell options given from defaults
-    bool given(const char* flag) const { return command && command->count(flag) > 0; }
+    std::unique_ptr<SettingsFlags> settings;  // method, size, threads, ACI, Monte Carlo, volumes
 };
 
 // Progress on stderr once a render has taken more than a second: rows done, rate, time left.
@@ -149,31 +133,9 @@ void writeScalarAov(OutputSet& outputs, const std::string& path, const std::stri
 
 int runRender(const RenderOptions& o) {
     // Every option is checked before the (possibly slow) scene loading.
-    RenderSettings settings;
-    nlohmann::json given = nlohmann::json::object();
-    const CLI::App& cmd = *o.command;
-    putGiven(given, cmd, "method", o.method);
-    putGiven(given, cmd, "width", o.width);
-    putGiven(given, cmd, "height", o.height);
-    putGiven(given, cmd, "threads", o.threads);
-    putGiven(given, cmd, "aci_grid", o.aciGrid);
-    putGiven(given, cmd, "aci_steps", o.aciSteps);
-    putGiven(given, cmd, "aci_mode", o.aciMode);
-    putGiven(given, cmd, "max_span", o.maxSpan);
-    putGiven(given, cmd, "samples", o.samples);
-    putGiven(given, cmd, "mc_threshold", o.mcThreshold);
-    putGiven(given, cmd, "mc_max_depth", o.mcMaxDepth);
-    putGiven(given, cmd, "mc_initial_depth", o.mcInitialDepth);
-    putGiven(given, cmd, "seed", o.seed);
-    putGiven(given, cmd, "volume_cache", o.volumeCache);
-    putGiven(given, cmd, "volume_samples", o.volumeSamples);
-    putGiven(given, cmd, "hide_volumes", o.hideVolumes);
-    withFlagNames([&] {
-        settings.readJson(given);
-        settings.validate();
-    });
-    if (o.given("--width") && o.given("--height")) {
-        checkRenderMemory(o.width, o.height, "", "--width/--height");  // before loading
+    RenderSettings settings = o.settings->read();
+    if (settings.width > 0 && settings.height > 0) {
+        checkRenderMemory(settings.width, settings.height, "", "--width/--height");  // before loading
     }
     imageFormatFor(o.output, "-o");
     if (!o.aovRays.empty()) imageFormatFor(o.aovRays, "--aov-rays");
@@ -289,55 +251,11 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_option("scene", o->scene, "Scene file (JSON, see docs/scene-format.md)")->required();
     cmd->add_option("-o,--output", o->output, "Output image: .exr (linear float) or .png (sRGB)")
         ->required();
-    cmd->add_option("--method", o->method,
-                    "aci: the section 5 pipeline (shaft culling, shadow-pattern coherence, "
-                    "interpolation); aci-pixel: full ACI at every pixel; reference, "
-                    "mc-adaptive, mc-solid-angle, mc-ratio: Monte Carlo estimators behind the "
-                    "same culling (docs/rendering.md)")
-        ->capture_default_str();
-    cmd->add_option("--threads", o->threads, "Worker threads (default: every hardware thread)");
-    cmd->add_option("--width", o->width, "Image width in pixels (default: the camera's)");
-    cmd->add_option("--height", o->height, "Image height in pixels (default: the camera's)");
     cmd->add_option("--stats", o->stats, "Write render statistics to this JSON file");
     cmd->add_option("--cache", o->cache,
                     "Level-set cache directory: level sets (and far-field companions) built "
                     "by earlier runs are read from it, new ones stored (created when missing)");
-    cmd->add_option("--aci-grid", o->aciGrid, "First-level grid p: p x p squares on the light")
-        ->capture_default_str();
-    cmd->add_option("--aci-steps", o->aciSteps, "Dichotomy steps n along a crossed side")
-        ->capture_default_str();
-    cmd->add_option("--aci-mode", o->aciMode,
-                    "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the "
-                    "midline check), tangent (distance-guided Newton dichotomy and tangent arcs; "
-                    "see docs/estimator.md)")
-        ->capture_default_str();
-    cmd->add_option("--max-span", o->maxSpan, "Longest span of pixels shaded together")
-        ->capture_default_str();
-    cmd->add_option("--volume-cache", o->volumeCache,
-                    "Volumes seen by the camera: nodes of the in-scattering lattice along the "
-                    "media's longest extent (0: compute it at every sample, slow)")
-        ->capture_default_str();
-    cmd->add_option("--volume-samples", o->volumeSamples,
-                    "Volumes seen by the camera: rays per in-scattering estimate, per light")
-        ->capture_default_str();
-    cmd->add_flag("--hide-volumes", o->hideVolumes,
-                  "Volumes cast shadows but the camera does not see them (no alpha channel)");
-    cmd->add_option("--samples", o->samples,
-                    "Monte Carlo methods: shadow rays per estimate (mc-adaptive: at most); "
-                    "default 1024 for reference and mc-adaptive, 16 for mc-solid-angle and "
-                    "mc-ratio");
-    cmd->add_option("--mc-threshold", o->mcThreshold,
-                    "mc-adaptive: split a light cell while the standard error of its "
-                    "contribution exceeds this fraction of the unoccluded form factor")
-        ->capture_default_str();
-    cmd->add_option("--mc-max-depth", o->mcMaxDepth, "mc-adaptive: deepest subdivision level")
-        ->capture_default_str();
-    cmd->add_option("--mc-initial-depth", o->mcInitialDepth,
-                    "mc-adaptive: start from a 2^d x 2^d grid of light cells (4 rays each)")
-        ->capture_default_str();
-    cmd->add_option("--seed", o->seed,
-                    "Monte Carlo methods: seed mixed with each pixel's coordinates and the light")
-        ->capture_default_str();
+    o->settings = std::make_unique<SettingsFlags>(cmd, RenderSettings::keys());
     cmd->add_option("--aov-rays", o->aovRays, "Shadow rays per pixel (.png: heat map)");
     cmd->add_option("--aov-ff", o->aovFormFactor, "Sum of the form factors (.png: scaled grey)");
     cmd->add_option("--aov-gradient", o->aovGradient,
@@ -350,7 +268,6 @@ Runner addRenderCommand(CLI::App& app) {
     cmd->add_flag("-v,--verbose", o->verbose,
                   "Report what building the obstacles' level sets cost (voxels, memory, seconds "
                   "per obstacle) on stderr");
-    o->command = cmd;
     return [o]() { return runRender(*o); };
 }
 
