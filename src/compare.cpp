@@ -91,4 +91,16 @@ Image differenceImage(const Image& test, const Image& ref) {
     return out;
 }
 
+void requireFinite(const Image& image, const std::string& file, const std::string& what) {
+    for (size_t i = 0; i < image.data.size(); ++i) {
+        if (std::isfinite(image.data[i])) continue;
+        const size_t pixel = i / size_t(image.channels);
+        throw InputError(file, what,
+                         "holds a non-finite value (" + std::to_string(image.data[i]) +
+                             ") at pixel " + std::to_string(pixel % size_t(image.width)) + ", " +
+                             std::to_string(pixel / size_t(image.width)) +
+                             ": no difference can be measured");
+    }
+}
+
 }  // namespace penumbra

@@ -779,19 +779,27 @@ struct ContourIntegrator::Lattice {
                 continue;
             }
             const Vec3 p = pointOf(q);
-            double best = std::numeric_limits<double>::infinity();
-            int side = 1;
-            for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
-                const Segment& g = self.mSegs[i];
-                const double dist = distanceToSegment(p, g);
-                if (dist < best) {
-                    best = dist;
-                    side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
-                }
-            }
+            double best;
+            const int side = nearestSide(leaf, p, best);
             if (side != answer && best > epsWorld) return true;
         }
         return false;
+    }
+
+    // The side of a contour square's nearest segment a light point lies on (visible, 1, on the
+    // left in (u, v)), and its distance to it.
+    int nearestSide(const Leaf& leaf, const Vec3& p, double& best) const {
+        best = std::numeric_limits<double>::infinity();
+        int side = 1;
+        for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
+            const Segment& g = self.mSegs[i];
+            const double dist = distanceToSegment(p, g);
+            if (dist < best) {
+                best = dist;
+                side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
+            }
+        }
+        return side;
     }
 
     // What the current contour says about a light point: visible (1) or hidden (0).
@@ -801,18 +809,8 @@ struct ContourIntegrator::Lattice {
                 continue;
             if (leaf.type != 2) return leaf.type;
             // A contour square: the side of the nearest segment (visible on the left in (u, v)).
-            const Vec3 p = pointOf(q);
-            double best = std::numeric_limits<double>::infinity();
-            int side = 1;
-            for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
-                const Segment& g = self.mSegs[i];
-                const double dist = distanceToSegment(p, g);
-                if (dist < best) {
-                    best = dist;
-                    side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
-                }
-            }
-            return side;
+            double best;
+            return nearestSide(leaf, pointOf(q), best);
         }
         return 1;
     }

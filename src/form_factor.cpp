@@ -133,4 +133,12 @@ double stripFormFactor(const Receiver& r, const Vec3& lightNormal, const Vec3& p
     return cos1 * cos2 * width * glm::length(p1 - p0) / (kPi * dist2);
 }
 
+bool lightReaches(const RectLight& light, const Receiver& r) {
+    if (!facesLight(light, r.point)) return false;
+    for (const Vec3& c : light.polygon()) {
+        if (glm::dot(c - r.point, r.normal) > 0.0) return true;
+    }
+    return false;
+}
+
 }  // namespace penumbra

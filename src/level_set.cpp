@@ -363,7 +363,7 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
     }
     checkVdbFile(file, where);
     openvdb::GridPtrVecPtr grids;
-    try {
+    withVdbErrors(file, where, [&] {
         openvdb::io::File vdb(file);
         // Read the voxel data now: delayed loading would make the render threads page leaves in.
         vdb.open(/*delayLoad=*/false);
@@ -383,13 +383,7 @@ std::vector<LevelSetPtr> readLevelSets(const std::string& file, const std::strin
             grids = vdb.getGrids();
         }
         vdb.close();
-    } catch (const InputError&) {
-        throw;
-    } catch (const std::bad_alloc&) {
-        throw std::runtime_error(file + ": out of memory reading the VDB file");
-    } catch (const std::exception& e) {
-        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
-    }
+    });
 
     std::vector<LevelSetPtr> out;
     if (!gridName.empty()) {

@@ -12,8 +12,10 @@
 #include <atomic>
 #include <memory>
 #include <mutex>
+#include <stdexcept>
 #include <string>
 
+#include "penumbra/error.h"
 #include "penumbra/level_set.h"
 #include "penumbra/math.h"
 
@@ -62,5 +64,21 @@ void writeVdbAtomically(const std::string& file, const openvdb::GridCPtrVec& gri
 
 /// openvdb::initialize(), once per process, thread-safe.
 void ensureOpenVdbInitialized();
+
+/// Runs `read` (OpenVDB calls on `file`) and turns what OpenVDB throws into the project's
+/// errors: InputError(file, where, "cannot read VDB file: ...") for a bad file, a runtime error
+/// naming the file when memory runs out. InputErrors of `read` itself pass through.
+template <class Read>
+auto withVdbErrors(const std::string& file, const std::string& where, Read&& read) {
+    try {
+        return read();
+    } catch (const InputError&) {
+        throw;
+    } catch (const std::bad_alloc&) {
+        throw std::runtime_error(file + ": out of memory reading the VDB file");
+    } catch (const std::exception& e) {
+        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
+    }
+}
 
 }  // namespace penumbra

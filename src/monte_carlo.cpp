@@ -207,14 +207,6 @@ Estimate finish(double f, const Receiver& r, uint64_t first, uint64_t second) {
     return e;
 }
 
-// A point of the light seen from the emitting side with some of it above M's horizon.
-bool lightReachable(const RectLight& light, const Receiver& r) {
-    if (!facesLight(light, r.point)) return false;
-    for (const Vec3& c : light.polygon()) {
-        if (glm::dot(c - r.point, r.normal) > 0.0) return true;
-    }
-    return false;
-}
 
 // One cell of mc-adaptive's quadtree over the light's (u, v) square, with one sample per
 // quadrant (quadrant q: bit 0 for the upper half in u, bit 1 in v).
@@ -232,7 +224,7 @@ struct Cell {
 Estimate monteCarloReference(const Receiver& r, const RectLight& light, Occluder::Query& query,
                              const McSettings& settings) {
     const int total = std::max(1, settings.samples);
-    if (!lightReachable(light, r)) return finish(0.0, r, 0, 0);
+    if (!lightReaches(light, r)) return finish(0.0, r, 0, 0);
     const Setup s(r, light, settings);
     Stream rng(settings.seed);
     // A kx x ky jittered grid with kx ky <= N as square as possible; the remaining samples are
@@ -265,7 +257,7 @@ Estimate monteCarloReference(const Receiver& r, const RectLight& light, Occluder
 
 Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder::Query& query,
                             const McSettings& settings) {
-    if (!lightReachable(light, r)) return finish(0.0, r, 0, 0);
+    if (!lightReaches(light, r)) return finish(0.0, r, 0, 0);
     const double f0 = unoccludedFormFactor(light, r);
     if (!(f0 > 0.0)) return finish(0.0, r, 0, 0);
     const Setup s(r, light, settings);
@@ -367,7 +359,7 @@ SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occlude
                               const McSettings& settings) {
     SolidAngleSums out;
     out.samples = std::max(1, settings.samples);
-    if (!lightReachable(light, r)) return out;
+    if (!lightReaches(light, r)) return out;
     const Setup s(r, light, settings);
     const SphericalRectangle rect(light, r.point);
     out.solidAngle = rect.solidAngle();

@@ -618,26 +618,9 @@ double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
     const double d0 = boxDistance(box, m, nullptr);
     if (d0 <= 0.0) return -1e300;
     auto h = [&](double t) { return boxDistance(box, m + t * v, nullptr) / t; };
-    constexpr double kInvPhi = 0.6180339887498949;
-    double a = 0.0, z = 1.0;
-    double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
-    double f1 = h(m1), f2 = h(m2);
-    for (int i = 0; i < 64 && z - a > 1e-12; ++i) {
-        if (f1 < f2) {
-            z = m2;
-            m2 = m1;
-            f2 = f1;
-            m1 = z - kInvPhi * (z - a);
-            f1 = h(m1);
-        } else {
-            a = m1;
-            m1 = m2;
-            f1 = f2;
-            m2 = a + kInvPhi * (z - a);
-            f2 = h(m2);
-        }
-    }
-    double best = std::min({f1, f2, h(1.0)});
+    const GoldenSection g = goldenSection(h, 0.0, 1.0, 64, 1e-12);
+    const double a = g.a;
+    double best = std::min({g.f1, g.f2, h(1.0)});
     // The search stops on a bracket of 1e-12: a clear radius is shaved by what t -> phi / t can
     // drop inside it (its slope is at most (|v| + |phi|) / t^2). A depth radius needs no shave:
     // any sampled depth is a true one.

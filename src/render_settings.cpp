@@ -134,6 +134,17 @@ const std::vector<std::string>& RenderSettings::keys() {
     return k;
 }
 
+const std::vector<std::pair<std::string, IntRange>>& RenderSettings::integerRanges() {
+    static const std::vector<std::pair<std::string, IntRange>> r = {
+        {"width", kImageSizeRange},         {"height", kImageSizeRange},
+        {"threads", kThreadsRange},         {"aci_grid", kAciGridRange},
+        {"aci_steps", kAciStepsRange},      {"max_span", kMaxSpanRange},
+        {"samples", kMcSamplesRange},       {"mc_max_depth", kMcMaxDepthRange},
+        {"mc_initial_depth", kMcInitialDepthRange}, {"volume_cache", kVolumeCacheRange},
+        {"volume_samples", kVolumeSamplesRange}};
+    return r;
+}
+
 void RenderSettings::readJson(const nlohmann::json& object, const std::string& file,
                               const std::string& where) {
     const Checker c{file, where};

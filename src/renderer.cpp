@@ -390,15 +390,6 @@ Hit castViewingRay(const Context& ctx, ThreadState& ts, int x, int y) {
     return hit;
 }
 
-// True when some of the light can reach the receiver: it faces the emitting side and a corner of
-// the light is above its tangent plane. Otherwise F = 0 with no ray, as the estimator would find.
-bool seesLight(const RectLight& light, const Receiver& r) {
-    if (!facesLight(light, r.point)) return false;
-    for (const Vec3& c : light.polygon()) {
-        if (glm::dot(c - r.point, r.normal) > 0.0) return true;
-    }
-    return false;
-}
 
 Vec3 gradientOf(const Mat3& dg, const Vec3& n) {
     // dF/dM_k = (d g / d M_k) . n with dg[k] = d g / d M_k (column k).
@@ -439,7 +430,7 @@ public:
         int litCount = 0;
         mTs.lit.assign(size_t(x1 - x0 + 1), kDark);
         for (int x = x0; x <= x1; ++x) {
-            if (seesLight(mLight, receiver(x))) {
+            if (lightReaches(mLight, receiver(x))) {
                 mTs.lit[size_t(x - x0)] = kNeedsRays;
                 spanBox.extend(mTs.hits[size_t(x)].point);
                 ++litCount;
@@ -535,7 +526,7 @@ public:
     // Full ACI at every lit pixel against every obstacle (Method::AciPixel).
     void shadePixel(int x) {
         Receiver r = receiver(x);
-        if (!seesLight(mLight, r)) return;
+        if (!lightReaches(mLight, r)) return;
         mGrid = mSettings.aci.grid;
         mTs.shadow.restrictTo(nullptr);
         if (mCtx.occluder.mediumCount() > 0) {

@@ -23,20 +23,12 @@ namespace penumbra::detail {
 /// Orders a fork or a join: release(key) before it on one side, acquire(key) after it on the
 /// other. Use distinct keys for the fork and for the join, so that tasks are not ordered among
 /// themselves (which would hide real races between them).
-inline void tsanRelease(const void* key) {
 #if defined(PENUMBRA_TSAN)
-    __tsan_release(const_cast<void*>(key));
+inline void tsanRelease(const void* key) { __tsan_release(const_cast<void*>(key)); }
+inline void tsanAcquire(const void* key) { __tsan_acquire(const_cast<void*>(key)); }
 #else
-    (void)key;
+inline void tsanRelease(const void*) {}
+inline void tsanAcquire(const void*) {}
 #endif
-}
-
-inline void tsanAcquire(const void* key) {
-#if defined(PENUMBRA_TSAN)
-    __tsan_acquire(const_cast<void*>(key));
-#else
-    (void)key;
-#endif
-}
 
 }  // namespace penumbra::detail

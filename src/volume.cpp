@@ -163,7 +163,7 @@ std::vector<VolumeGridPtr> readVolumes(const std::string& file, const std::strin
                                        const std::string& where) {
     const VdbGridKinds kinds = vdbGridKinds(file, where);  // checks the file and its header
     openvdb::GridPtrVecPtr grids = std::make_shared<openvdb::GridPtrVec>();
-    try {
+    withVdbErrors(file, where, [&] {
         openvdb::io::File vdb(file);
         vdb.open(/*delayLoad=*/false);
         if (!gridName.empty()) {
@@ -175,13 +175,7 @@ std::vector<VolumeGridPtr> readVolumes(const std::string& file, const std::strin
             for (const std::string& n : kinds.volumes) grids->push_back(vdb.readGrid(n));
         }
         vdb.close();
-    } catch (const InputError&) {
-        throw;
-    } catch (const std::bad_alloc&) {
-        throw std::runtime_error(file + ": out of memory reading the VDB file");
-    } catch (const std::exception& e) {
-        throw InputError(file, where, std::string("cannot read VDB file: ") + e.what());
-    }
+    });
     if (grids->empty()) throw InputError(file, where, "no fog volume grid in the file");
     std::vector<VolumeGridPtr> out;
     for (const openvdb::GridBase::Ptr& g : *grids) {

@@ -143,29 +143,12 @@ Exact exactRadius(const Sdf& sdf, const Vec3& m, const Vec3& v, int dense) {
             best = k;
         }
     }
-    double a = best > 0 ? ts[best - 1] : 0.5 * ts[0];
-    double z = best + 1 < ts.size() ? ts[best + 1] : 1.0;
-    constexpr double kInvPhi = 0.6180339887498949;
-    double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
-    double f1 = h(m1), f2 = h(m2);
-    for (int i = 0; i < 200 && z - a > 1e-15; ++i) {
-        if (f1 < f2) {
-            z = m2;
-            m2 = m1;
-            f2 = f1;
-            m1 = z - kInvPhi * (z - a);
-            f1 = h(m1);
-        } else {
-            a = m1;
-            m1 = m2;
-            f1 = f2;
-            m2 = a + kInvPhi * (z - a);
-            f2 = h(m2);
-        }
-    }
+    const double a = best > 0 ? ts[best - 1] : 0.5 * ts[0];
+    const double z = best + 1 < ts.size() ? ts[best + 1] : 1.0;
+    const GoldenSection g = goldenSection(h, a, z, 200, 1e-15);
     Exact e{bestValue, ts[best]};
-    if (f1 < e.value) e = {f1, m1};
-    if (f2 < e.value) e = {f2, m2};
+    if (g.f1 < e.value) e = {g.f1, g.m1};
+    if (g.f2 < e.value) e = {g.f2, g.m2};
     return e;
 }
 

@@ -8,6 +8,8 @@
 /// Thread safety: pure functions.
 #pragma once
 
+#include <string>
+
 #include <cstddef>
 
 #include "penumbra/image_io.h"
@@ -31,6 +33,10 @@ struct ImageDifference {
 /// `mask` is given, also over its pixels (same width and height, any channels). Throws
 /// InputError (`where` is "REF" or "--mask") when the sizes or channel counts differ.
 ImageDifference compareImages(const Image& test, const Image& ref, const Image* mask = nullptr);
+
+/// Throws InputError(file, what, ...) naming the first non-finite value and its pixel: a NaN
+/// would vanish from every figure (it compares false with everything).
+void requireFinite(const Image& image, const std::string& file, const std::string& what);
 
 /// One channel: per pixel, the mean over channels of 255 |test - ref| (for error maps: pass it
 /// to heatMap()). Same preconditions as compareImages.

@@ -94,4 +94,8 @@ double stripFormFactor(const Receiver& r, const Vec3& lightNormal, const Vec3& p
 /// True when M lies strictly on the emitting side of the light's plane.
 bool facesLight(const RectLight& light, const Vec3& m);
 
+/// True when some of the light can reach the receiver: M faces the emitting side and a corner
+/// of the light is above its tangent plane. Otherwise F = 0, with no ray needed.
+bool lightReaches(const RectLight& light, const Receiver& r);
+
 }  // namespace penumbra

@@ -48,4 +48,36 @@ struct Box3 {
     }
 };
 
+/// Golden-section search for the minimum of `f`, unimodal on [a, z]: narrows the bracket until
+/// it is under `tolerance` or after `maxSteps` steps. Returns the final bracket and its two
+/// interior points with their values (the smallest value seen is min(f1, f2)).
+struct GoldenSection {
+    double a, z;    ///< the final bracket
+    double m1, m2;  ///< its interior points, m1 < m2
+    double f1, f2;  ///< f(m1), f(m2)
+};
+template <class F>
+GoldenSection goldenSection(F&& f, double a, double z, int maxSteps, double tolerance) {
+    constexpr double kInvPhi = 0.6180339887498949;
+    GoldenSection g{a, z, z - kInvPhi * (z - a), a + kInvPhi * (z - a), 0.0, 0.0};
+    g.f1 = f(g.m1);
+    g.f2 = f(g.m2);
+    for (int i = 0; i < maxSteps && g.z - g.a > tolerance; ++i) {
+        if (g.f1 < g.f2) {  // the minimum is in [a, m2]
+            g.z = g.m2;
+            g.m2 = g.m1;
+            g.f2 = g.f1;
+            g.m1 = g.z - kInvPhi * (g.z - g.a);
+            g.f1 = f(g.m1);
+        } else {  // in [m1, z]
+            g.a = g.m1;
+            g.m1 = g.m2;
+            g.f1 = g.f2;
+            g.m2 = g.a + kInvPhi * (g.z - g.a);
+            g.f2 = f(g.m2);
+        }
+    }
+    return g;
+}
+
 }  // namespace penumbra

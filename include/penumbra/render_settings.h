@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json_fwd.hpp>
@@ -183,6 +184,8 @@ struct RenderSettings {
 
     /// Every key of the JSON model, in its order (the file comment's list).
     static const std::vector<std::string>& keys();
+    /// The integer keys and their ranges.
+    static const std::vector<std::pair<std::string, IntRange>>& integerRanges();
     /// Reads the model's keys present in `object` over these settings (other keys are left to
     /// the caller); one range per key. Errors: InputError(file, where + "/" + key, message).
     void readJson(const nlohmann::json& object, const std::string& file = "",

@@ -38,16 +38,7 @@ Image load(const std::string& path, const std::string& what) {
     } catch (const std::exception& e) {
         throw InputError(path, what, std::string("cannot read the image: ") + e.what());
     }
-    // A NaN compares false with everything: it would vanish from the maximum and the mean.
-    for (size_t i = 0; i < image.data.size(); ++i) {
-        if (std::isfinite(image.data[i])) continue;
-        const size_t pixel = i / size_t(image.channels);
-        throw InputError(path, what,
-                         "holds a non-finite value (" + std::to_string(image.data[i]) +
-                             ") at pixel " + std::to_string(pixel % size_t(image.width)) + ", " +
-                             std::to_string(pixel / size_t(image.width)) + ": no difference can "
-                             "be measured");
-    }
+    requireFinite(image, path, what);
     return image;
 }
 

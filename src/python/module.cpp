@@ -470,15 +470,7 @@ Image comparedImage(py::handle v, const std::string& what) {
     } else {
         img = arrayImage(v, what);
     }
-    for (size_t i = 0; i < img.data.size(); ++i) {
-        if (std::isfinite(img.data[i])) continue;
-        const size_t pixel = i / size_t(img.channels);
-        throw InputError(file, what,
-                         "holds a non-finite value (" + std::to_string(img.data[i]) +
-                             ") at pixel " + std::to_string(pixel % size_t(img.width)) + ", " +
-                             std::to_string(pixel / size_t(img.width)) +
-                             ": no difference can be measured");
-    }
+    requireFinite(img, file, what);
     return img;
 }
 
@@ -570,18 +562,7 @@ py::tuple renderScene(const PyScene& self, py::handle width, py::handle height,
 
 py::dict settingRanges() {
     py::dict d;
-    auto range = [](IntRange r) { return py::make_tuple(r.lo, r.hi); };
-    d["aci_grid"] = range(kAciGridRange);
-    d["aci_steps"] = range(kAciStepsRange);
-    d["max_span"] = range(kMaxSpanRange);
-    d["samples"] = range(kMcSamplesRange);
-    d["mc_max_depth"] = range(kMcMaxDepthRange);
-    d["mc_initial_depth"] = range(kMcInitialDepthRange);
-    d["threads"] = range(kThreadsRange);
-    d["volume_cache"] = range(kVolumeCacheRange);
-    d["volume_samples"] = range(kVolumeSamplesRange);
-    d["width"] = range(kImageSizeRange);
-    d["height"] = range(kImageSizeRange);
+    for (const auto& [key, r] : RenderSettings::integerRanges()) d[key.c_str()] = py::make_tuple(r.lo, r.hi);
     return d;
 }
 
