@@ -445,150 +445,6 @@ Clearance Occluder::Query::clearance(const Vec3& from, const Vec3& to, bool bloc
     return c;
 }
 
-bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,
-                            int known) {
-    if (clearance) *clearance = Clearance{};
-    // The nearest obstacle whose distance is unknown is at least this far (its band): the
-    // smallest known distance is the segment's clearance when it is below that.
-    double unknownFloor = std::numeric_limits<double>::infinity();
-    double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
-    Vec3 clearanceNormal(0.0);
-    int clearanceObstacle = -1;
-    // Smallest and largest per-obstacle bounds (see Clearance::bound); 0 marks "unknown".
-    double boundMin = std::numeric_limits<double>::infinity();
-    bool boundKnown = true;
-    bool touched = false;
-    const Vec3 delta = to - from;
-    const double length = glm::length(delta);
-    const double eps = segmentEpsilon(length);
-    if (!(length > 2.0 * eps)) return false;
-    const Vec3 dir = delta / length;
-    const Vec3 invDir = 1.0 / dir;  // +-inf on axes the ray does not move along
-    const double tMin = eps;
-    double tMax = length - eps;  // shrinks to the nearest hit so far when tHit is wanted
-    bool hit = false;
-    double best = std::numeric_limits<double>::infinity();
-
-    const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
-    for (size_t k = 0; k < count; ++k) {
-        const size_t i = mCandidates ? (*mCandidates)[k] : k;
-        assert(i < mOccluder->size());
-        const Box3& bounds = mOccluder->bounds(i);
-        if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
-        const ObstacleShape& shape = mOccluder->shape(i);
-        if (clearance) {
-            // Over the whole segment, and around the obstacle as far as its distance is known.
-            Clearance ci;
-            bool near = true;
-            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
-                ci = sphereClearance(*sphere, from, dir, tMin, length - eps);
-            } else if (const auto* box = std::get_if<AnalyticBox>(&shape)) {
-                ci = boxClearance(*box, from, dir, tMin, length - eps);
-            } else {
-                Box3 wide = bounds;
-                const double pad =
-                    kFarBand * kFarVoxelFactor * std::get<LevelSetPtr>(shape)->voxelSize();
-                wide.lo -= Vec3(pad);
-                wide.hi += Vec3(pad);
-                double c0 = tMin, c1 = length - eps;
-                near = wide.clipRay(from, invDir, c0, c1);
-                if (near && mImpl->levelSets[i])
-                    ci = levelSetClearance(*mImpl->levelSets[i], mOccluder->mFar[i]->get(), from,
-                                           dir, c0, c1);
-            }
-            if (!near) {
-                // The segment misses the obstacle's bounds widened by `pad`.
-                const double pad =
-                    kFarBand * kFarVoxelFactor * std::get<LevelSetPtr>(shape)->voxelSize();
-                boundMin = std::min(boundMin, pad);
-            } else if (std::holds_alternative<LevelSetPtr>(shape)) {
-                if (ci.bound == 0.0) boundKnown = false;
-                boundMin = std::min(boundMin, ci.bound);
-            } else {
-                boundMin = std::min(boundMin, ci.distance);  // analytic: exact
-            }
-            if (near) {
-                touched = true;
-                if (!ci.known()) {
-                    unknownFloor = std::min(unknownFloor, ci.bound > 0.0 ? ci.bound : -1e300);
-                } else if (ci.distance < clearanceMin) {
-                    clearanceMin = ci.distance;
-                    clearanceAt = ci.at;
-                    clearanceNormal = ci.normal;
-                    clearanceObstacle = static_cast<int>(i);
-                }
-            }
-        }
-        if (known >= 0) continue;  // the answer is known: only the clearance is wanted
-        double t0 = tMin, t1 = tMax;
-        if (!bounds.clipRay(from, invDir, t0, t1)) continue;
-
-        double t = 0.0;
-        bool found = false;
-        if (std::holds_alternative<AnalyticBox>(shape)) {
-            // The bounds are the box itself, so the clipped interval is the answer.
-            found = true;
-            t = t0 > tMin ? t0 : 0.0;
-        } else if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
-            found = hitSphere(*sphere, from, dir, tMin, tMax, &t);
-        } else {
-            LevelSetSlot& slot = *mImpl->levelSets[i];
-            if (t0 == tMin) {
-                // The segment starts inside the bounds: the marcher only finds sign changes,
-                // so a start inside the surface must be caught here.
-                const openvdb::Vec3d startIS =
-                    slot.grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
-                if (openvdb::tools::BoxSampler::sample(slot.accessor, startIS) < 0.0f) {
-                    found = true;
-                    t = 0.0;
-                }
-            }
-            if (!found) {
-                const VdbRay ray(openvdb::Vec3d(from.x, from.y, from.z),
-                                 openvdb::Vec3d(dir.x, dir.y, dir.z), t0, t1);
-                openvdb::Vec3d xyz;
-                // The overload returning the point: the one returning a time can hand back the
-                // previous ray's time (OpenVDB 10).
-                if (slot.intersector.intersectsWS(ray, xyz)) {
-                    // The marcher stops at t1, but t is recomputed from a point that went
-                    // through the index-space map: keep the segment end exclusive.
-                    t = glm::dot(Vec3(xyz.x(), xyz.y(), xyz.z()) - from, dir);
-                    found = t < tMax;
-                    if (t < 0.0) t = 0.0;
-                }
-            }
-        }
-        if (!found) continue;
-        if (!tHit && !clearance) return true;
-        hit = true;
-        if (t < best) {
-            best = t;
-            // Nothing can be nearer than the start (with a clearance wanted, the other
-            // obstacles are still measured, as when the answer is known beforehand).
-            if (best <= 0.0 && !clearance) break;
-            tMax = std::max(tMin, std::min(tMax, t));
-        }
-    }
-    if (known >= 0) hit = known == 1;
-    if (hit && tHit) *tHit = best;
-    if (clearance) {
-        // Unblocked: every obstacle must be provably away. Blocked: one provably deep is enough.
-        if (hit) {
-            clearance->bound = boundMin < 0.0 ? boundMin : 0.0;
-        } else {
-            clearance->bound = boundKnown && boundMin > 0.0
-                                   ? (std::isfinite(boundMin) ? boundMin : 1e300)
-                                   : 0.0;
-        }
-    }
-    if (clearance && touched && clearanceMin < unknownFloor) {
-        clearance->distance = clearanceMin;
-        clearance->at = clearanceAt;
-        clearance->normal = clearanceNormal;
-        clearance->obstacle = clearanceObstacle;
-    }
-    return hit;
-}
 
 
 // ---------------------------------------------------------------------------------------------
@@ -734,6 +590,220 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     return -depth;
 }
 
+
+// ---------------------------------------------------------------------------------------------
+// Obstacle kinds
+//
+// What the query asks of an obstacle, one struct per kind with the same members:
+//   clearance(from, dir, invDir, t0, t1, near): the signed closest approach of the segment
+//       from + t dir, t in [t0, t1] (Clearance), with `bound` the proven part of it (exact
+//       for analytic shapes); `near` false when the segment stays beyond what the kind can
+//       measure (its `bound` then says how far);
+//   hit(from, dir, invDir, bounds, tMin, tMax, t): the first hit in (tMin, tMax), t = 0 when
+//       the segment starts inside;
+//   radius(m, v, want, blocked, tHitFraction): the signed certificate radius (occluder.h's
+//       Certificate) of the segment m + t v, up to `want`.
+// The query visits them (visitKind); OpenVDB stays inside the level-set kind.
+
+namespace {
+
+struct SphereKind {
+    const AnalyticSphere& sphere;
+
+    Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3&, double t0, double t1,
+                        bool& near) const {
+        near = true;
+        Clearance c = sphereClearance(sphere, from, dir, t0, t1);
+        c.bound = c.distance;  // exact
+        return c;
+    }
+    bool hit(const Vec3& from, const Vec3& dir, const Vec3& invDir, const Box3& bounds,
+             double tMin, double tMax, double& t) const {
+        double t0 = tMin, t1 = tMax;
+        if (!bounds.clipRay(from, invDir, t0, t1)) return false;
+        return hitSphere(sphere, from, dir, tMin, tMax, &t);
+    }
+    double radius(const Vec3& m, const Vec3& v, double, bool, double) const {
+        return sphereRadius(sphere, m, v);
+    }
+};
+
+struct BoxKind {
+    const AnalyticBox& box;
+
+    Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3&, double t0, double t1,
+                        bool& near) const {
+        near = true;
+        Clearance c = boxClearance(box, from, dir, t0, t1);
+        c.bound = c.distance;  // exact
+        return c;
+    }
+    bool hit(const Vec3& from, const Vec3&, const Vec3& invDir, const Box3& bounds, double tMin,
+             double tMax, double& t) const {
+        // The bounds are the box itself, so the clipped interval is the answer.
+        double t0 = tMin, t1 = tMax;
+        if (!bounds.clipRay(from, invDir, t0, t1)) return false;
+        t = t0 > tMin ? t0 : 0.0;
+        return true;
+    }
+    double radius(const Vec3& m, const Vec3& v, double, bool, double) const {
+        return boxRadius(box, m, v);
+    }
+};
+
+struct LevelSetKind {
+    const LevelSet& levelSet;
+    LevelSetSlot* slot;  // this thread's intersector and accessors; null for an empty grid
+    const Occluder::FarField& far;
+    const Box3& bounds;
+
+    Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3& invDir, double t0,
+                        double t1, bool& near) const {
+        // Distances are known around the obstacle as far as its companion's band reaches.
+        const double pad = kFarBand * kFarVoxelFactor * levelSet.voxelSize();
+        Box3 wide = bounds;
+        wide.lo -= Vec3(pad);
+        wide.hi += Vec3(pad);
+        near = wide.clipRay(from, invDir, t0, t1);
+        if (!near) {
+            Clearance c;
+            c.bound = pad;  // the segment misses the bounds widened by `pad`
+            return c;
+        }
+        return slot ? levelSetClearance(*slot, far.get(), from, dir, t0, t1) : Clearance{};
+    }
+    bool hit(const Vec3& from, const Vec3& dir, const Vec3& invDir, const Box3&, double tMin,
+             double tMax, double& t) const {
+        double t0 = tMin, t1 = tMax;
+        if (!slot || !bounds.clipRay(from, invDir, t0, t1)) return false;
+        if (t0 == tMin) {
+            // The segment starts inside the bounds: the marcher only finds sign changes, so a
+            // start inside the surface must be caught here.
+            const openvdb::Vec3d startIS =
+                slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
+            if (openvdb::tools::BoxSampler::sample(slot->accessor, startIS) < 0.0f) {
+                t = 0.0;
+                return true;
+            }
+        }
+        const VdbRay ray(openvdb::Vec3d(from.x, from.y, from.z), openvdb::Vec3d(dir.x, dir.y, dir.z),
+                         t0, t1);
+        openvdb::Vec3d xyz;
+        // The overload returning the point: the one returning a time can hand back the previous
+        // ray's time (OpenVDB 10).
+        if (!slot->intersector.intersectsWS(ray, xyz)) return false;
+        // The marcher stops at t1, but t is recomputed from a point that went through the
+        // index-space map: keep the segment end exclusive.
+        t = glm::dot(Vec3(xyz.x(), xyz.y(), xyz.z()) - from, dir);
+        if (!(t < tMax)) return false;
+        if (t < 0.0) t = 0.0;
+        return true;
+    }
+    double radius(const Vec3& m, const Vec3& v, double want, bool blocked, double tHitFraction) const {
+        return slot ? levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
+                                     tHitFraction)
+                    : want;
+    }
+};
+
+}  // namespace
+
+template <class F>
+decltype(auto) Occluder::Query::visitKind(size_t i, F&& f) {
+    const ObstacleShape& shape = mOccluder->shape(i);
+    if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) return f(SphereKind{*sphere});
+    if (const auto* box = std::get_if<AnalyticBox>(&shape)) return f(BoxKind{*box});
+    return f(LevelSetKind{*std::get<LevelSetPtr>(shape), mImpl->levelSets[i].get(),
+                          *mOccluder->mFar[i], mOccluder->bounds(i)});
+}
+
+bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,
+                            int known) {
+    if (clearance) *clearance = Clearance{};
+    // The nearest obstacle whose distance is unknown is at least this far (its band): the
+    // smallest known distance is the segment's clearance when it is below that.
+    double unknownFloor = std::numeric_limits<double>::infinity();
+    double clearanceMin = std::numeric_limits<double>::infinity(), clearanceAt = 0.0;
+    Vec3 clearanceNormal(0.0);
+    int clearanceObstacle = -1;
+    // Smallest and largest per-obstacle bounds (see Clearance::bound); 0 marks "unknown".
+    double boundMin = std::numeric_limits<double>::infinity();
+    bool boundKnown = true;
+    bool touched = false;
+    const Vec3 delta = to - from;
+    const double length = glm::length(delta);
+    const double eps = segmentEpsilon(length);
+    if (!(length > 2.0 * eps)) return false;
+    const Vec3 dir = delta / length;
+    const Vec3 invDir = 1.0 / dir;  // +-inf on axes the ray does not move along
+    const double tMin = eps;
+    double tMax = length - eps;  // shrinks to the nearest hit so far when tHit is wanted
+    bool hit = false;
+    double best = std::numeric_limits<double>::infinity();
+
+    const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mCandidates ? (*mCandidates)[k] : k;
+        assert(i < mOccluder->size());
+        const Box3& bounds = mOccluder->bounds(i);
+        if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
+        double t = 0.0;
+        bool found = false;
+        visitKind(i, [&](const auto& kind) {
+            if (clearance) {
+                // Over the whole segment, and around the obstacle as far as its distance is
+                // known.
+                bool near = true;
+                const Clearance ci = kind.clearance(from, dir, invDir, tMin, length - eps, near);
+                if (near && ci.bound == 0.0) boundKnown = false;
+                boundMin = std::min(boundMin, ci.bound);
+                if (near) {
+                    touched = true;
+                    if (!ci.known()) {
+                        unknownFloor = std::min(unknownFloor, ci.bound > 0.0 ? ci.bound : -1e300);
+                    } else if (ci.distance < clearanceMin) {
+                        clearanceMin = ci.distance;
+                        clearanceAt = ci.at;
+                        clearanceNormal = ci.normal;
+                        clearanceObstacle = static_cast<int>(i);
+                    }
+                }
+            }
+            if (known >= 0) return;  // the answer is known: only the clearance is wanted
+            found = kind.hit(from, dir, invDir, bounds, tMin, tMax, t);
+        });
+        if (!found) continue;
+        if (!tHit && !clearance) return true;
+        hit = true;
+        if (t < best) {
+            best = t;
+            // Nothing can be nearer than the start (with a clearance wanted, the other
+            // obstacles are still measured, as when the answer is known beforehand).
+            if (best <= 0.0 && !clearance) break;
+            tMax = std::max(tMin, std::min(tMax, t));
+        }
+    }
+    if (known >= 0) hit = known == 1;
+    if (hit && tHit) *tHit = best;
+    if (clearance) {
+        // Unblocked: every obstacle must be provably away. Blocked: one provably deep is enough.
+        if (hit) {
+            clearance->bound = boundMin < 0.0 ? boundMin : 0.0;
+        } else {
+            clearance->bound = boundKnown && boundMin > 0.0
+                                   ? (std::isfinite(boundMin) ? boundMin : 1e300)
+                                   : 0.0;
+        }
+    }
+    if (clearance && touched && clearanceMin < unknownFloor) {
+        clearance->distance = clearanceMin;
+        clearance->at = clearanceAt;
+        clearance->normal = clearanceNormal;
+        clearance->obstacle = clearanceObstacle;
+    }
+    return hit;
+}
+
 void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double tHit,
                               double want, Certificate& out) {
     out = Certificate{};
@@ -760,23 +830,14 @@ void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, do
         if (far >= want) {
             r = want;
         } else {
-            const ObstacleShape& shape = mOccluder->shape(i);
-            if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
-                r = sphereRadius(*sphere, from, v);
-            } else if (const auto* box = std::get_if<AnalyticBox>(&shape)) {
-                r = boxRadius(*box, from, v);
-            } else {
-                // A blocked segment's first hit inside these bounds: measure the depth there.
-                const double length = glm::length(v);
-                const Vec3 hitPoint = from + (tHit / length) * v;
-                const bool hitHere = blocked && glm::all(glm::greaterThanEqual(hitPoint, bounds.lo)) &&
-                                     glm::all(glm::lessThanEqual(hitPoint, bounds.hi));
-                r = mImpl->levelSets[i]
-                        ? levelSetRadius(*mImpl->levelSets[i], mOccluder->mFar[i]->get(),
-                                         mOccluder->mFar[i]->error(), bounds, from, v, want,
-                                         blocked, hitHere ? tHit / length : -1.0)
-                        : want;
-            }
+            // A blocked segment's first hit inside these bounds: measure the depth there.
+            const double length = glm::length(v);
+            const Vec3 hitPoint = from + (tHit / length) * v;
+            const bool hitHere = blocked && glm::all(glm::greaterThanEqual(hitPoint, bounds.lo)) &&
+                                 glm::all(glm::lessThanEqual(hitPoint, bounds.hi));
+            r = visitKind(i, [&](const auto& kind) {
+                return kind.radius(from, v, want, blocked, hitHere ? tHit / length : -1.0);
+            });
             r = std::clamp(r, -want, want);
         }
         if (r >= 0.0) {
