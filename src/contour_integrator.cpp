@@ -8,6 +8,80 @@
 
 namespace penumbra {
 
+// ---------------------------------------------------------------------------------------------
+// Per-sample and per-evaluation data
+
+namespace {
+
+// What a sample's ray measured of the nearest surface (tangent mode): the distance gradient
+// at its closest approach, where that is along the ray, and which obstacle.
+struct RayGeometry {
+    float normal[3] = {0.0f, 0.0f, 0.0f};  // 0: unknown
+    float closest = 0.0f;                  // fraction of the ray; 0: unknown
+    float obstacle = -1.0f;                // the obstacle's index; -1: unknown
+    float stale = 0.0f;                    // 1: an earlier receiver point's ray (reuseCorners)
+};
+
+// One traced ray as a lattice sample keeps it, and as reuseCorners keeps a first-level one.
+struct Corner {
+    Vec3 origin{0.0};
+    double bound = 0.0;  // Clearance::bound of the ray (0: cannot be reused)
+    float sample = 0.0f, clear = 0.0f;
+    RayGeometry geometry;
+    Certificate cert;  // with AciSettings::coverage
+    // Whether this ray's answer holds for a ray from `from` to the same light point.
+    bool answers(const Vec3& from) const {
+        return bound != 0.0 && glm::length(from - origin) < std::abs(bound);
+    }
+};
+
+struct Disc {
+    Vec3 c;        // centre on the light
+    double r2;     // squared radius of the full certificate
+    double ro2;    // squared radius that excludes every obstacle but `obstacle`
+    int obstacle;  // Certificate::obstacle
+};
+struct Segment {  // a piece of located contour and the band around it
+    Vec3 a, b;
+    double width;
+    int own;  // its obstacle, -1 unknown or mixed
+};
+struct Leaf {  // a square closed by the last pass
+    int x0, y0, s;
+    int type;  // 0 hidden, 1 visible, 2 contour (segments seg0 .. seg1)
+    uint32_t seg0, seg1;
+};
+struct Uncovered {  // a cell of the light no disc or band proves yet
+    double a0, b0, size;  // lattice coordinates
+    double gap;           // its centre's distance to the nearest disc that would prove it
+    int own;              // the obstacle of the contour band it is in, -1 none
+    Vec3 centre;
+};
+
+}  // namespace
+
+struct ContourIntegrator::Scratch {
+    std::vector<Corner> mCorners;  // (p+1)^2 for mCornerGrid and mCornerLight; empty: none
+    int mCornerGrid = 0;
+    RectLight mCornerLight;
+    Corner* reusableCorner(const RectLight& light, int grid, int i, int j);
+    std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
+    std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
+    std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
+    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet
+    std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
+    std::vector<Certificate> mCert;  // coverage: each sample's certificate
+    std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
+    std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
+    std::vector<Segment> mSegs;      // coverage: the last pass's contour segments
+    std::vector<Segment> mNearSegs;  // coverage scratch: segments near one leaf
+    std::vector<Leaf> mLeaves;       // coverage: the last pass's leaves
+    std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
+    std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
+    std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
+    uint32_t mGeneration = 0;
+};
+
 namespace {
 
 constexpr float kVisible = -1.0f;
@@ -18,7 +92,6 @@ constexpr double kCoverageCell = 8.0;   // coverage cells, in lattice units (1/8
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
-constexpr size_t kTangentFloats = 6;
 
 struct LatticePoint {
     int a, b;
@@ -35,27 +108,27 @@ struct Vertex {
 };
 
 // Fills what a ray's clearance `c` tells the tangent mode: the angular clearance and, in
-// `tangent`, the distance gradient, the closest approach's fraction and the obstacle.
-void recordClearance(const Clearance& c, double len, float& clear, float* tangent) {
+// `g`, the distance gradient, the closest approach's fraction and the obstacle.
+void recordClearance(const Clearance& c, double len, float& clear, RayGeometry& g) {
     const bool known = c.known() && c.at > 0.0;
     clear = known ? static_cast<float>(c.distance / c.at) : std::numeric_limits<float>::quiet_NaN();
-    for (int k = 0; k < 3; ++k) tangent[k] = known ? float(c.normal[k]) : 0.0f;
-    tangent[3] = known ? static_cast<float>(c.at / len) : 0.0f;
-    tangent[4] = known ? static_cast<float>(c.obstacle) : -1.0f;
-    tangent[5] = 0.0f;
+    for (int k = 0; k < 3; ++k) g.normal[k] = known ? float(c.normal[k]) : 0.0f;
+    g.closest = known ? static_cast<float>(c.at / len) : 0.0f;
+    g.obstacle = known ? static_cast<float>(c.obstacle) : -1.0f;
+    g.stale = 0.0f;
 }
 
 // Traces one shadow ray from `origin` to `target` and records what it tells: the lattice's
 // sample value, the angular clearance and, in tangent mode, the gradient data and bound.
 // `measure`: whether to measure the clearance now (else the caller does it when needed).
-ContourIntegrator::Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
+Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
                                    const AciSettings& settings, double want, bool measure) {
-    ContourIntegrator::Corner out;
+    Corner out;
     out.origin = origin;
     double tHit = 0.0;
     Clearance c;
     const bool hidden = query.occluded(origin, target, &tHit, measure ? &c : nullptr);
-    recordClearance(c, glm::length(target - origin), out.clear, out.tangent);
+    recordClearance(c, glm::length(target - origin), out.clear, out.geometry);
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0))
                         : kVisible;
@@ -82,6 +155,7 @@ uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
 // side 2^(k+1) gets k dichotomy steps; refinement and restarts both lower k by one.
 struct ContourIntegrator::Lattice {
     ContourIntegrator& self;
+    Scratch& scratch;
     const Receiver& rec;
     const RectLight& light;
     Occluder::Query& query;
@@ -92,7 +166,7 @@ struct ContourIntegrator::Lattice {
     double want;      // coverage: the radius that covers the whole light from any of its points
     double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
     double unit;         // world length of one lattice unit (averaged over the two edges)
-    size_t mScanned = 0;  // coverage: traced rays already in self.mUncovered (0: scan anew)
+    size_t mScanned = 0;  // coverage: traced rays already in scratch.mUncovered (0: scan anew)
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again
@@ -102,7 +176,8 @@ struct ContourIntegrator::Lattice {
 
     Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l, Occluder::Query& q, int grid,
             int steps)
-        : self(s), rec(r), light(l), query(q), p(grid), n(steps), N(grid << (steps + 1)) {
+        : self(s), scratch(*s.mScratch), rec(r), light(l), query(q), p(grid), n(steps),
+          N(grid << (steps + 1)) {
         origin = r.point + s.mSettings.rayOffset * r.normal;
         lightNormal = l.normal();
         epsWorld = (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;  // 2 units, averaged
@@ -112,23 +187,21 @@ struct ContourIntegrator::Lattice {
         // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
         want = 0.51 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
         const size_t size = static_cast<size_t>(N + 1) * (N + 1);
-        if (s.mSettings.coverage && self.mCert.size() < size) self.mCert.resize(size);
-        self.mTraced.clear();
-        self.mAllTraced.clear();
-        self.mMarked.clear();
-        if (self.mStamp.size() < size) {
-            self.mStamp.assign(size, 0);
-            self.mSample.assign(size, 0.0f);
-            self.mClear.assign(size, 0.0f);
-            self.mPending.assign(size, 0);
-            self.mGeneration = 0;
+        if (s.mSettings.coverage && scratch.mCert.size() < size) scratch.mCert.resize(size);
+        scratch.mTraced.clear();
+        scratch.mAllTraced.clear();
+        scratch.mMarked.clear();
+        if (scratch.mStamp.size() < size) {
+            scratch.mStamp.assign(size, 0);
+            scratch.mSample.assign(size, 0.0f);
+            scratch.mClear.assign(size, 0.0f);
+            scratch.mPending.assign(size, 0);
+            scratch.mGeneration = 0;
         }
-        if (s.mSettings.tangentContour && self.mNormal.size() < kTangentFloats * size) {
-            self.mNormal.assign(kTangentFloats * size, 0.0f);
-        }
-        if (++self.mGeneration == 0) {  // wrapped: forget every stamp
-            std::fill(self.mStamp.begin(), self.mStamp.end(), 0);
-            self.mGeneration = 1;
+        if (s.mSettings.tangentContour && scratch.mGeometry.size() < size) scratch.mGeometry.resize(size);
+        if (++scratch.mGeneration == 0) {  // wrapped: forget every stamp
+            std::fill(scratch.mStamp.begin(), scratch.mStamp.end(), 0);
+            scratch.mGeneration = 1;
         }
     }
 
@@ -139,16 +212,16 @@ struct ContourIntegrator::Lattice {
     // Visibility of a lattice sample, tracing a ray only the first time it is asked for.
     float& sample(LatticePoint q, bool firstLevel) {
         const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
-        float& s = self.mSample[idx];
-        if (self.mStamp[idx] == self.mGeneration) {
+        float& s = scratch.mSample[idx];
+        if (scratch.mStamp[idx] == scratch.mGeneration) {
             ++counts.cacheHits;
             return s;
         }
-        self.mStamp[idx] = self.mGeneration;
-        self.mPending[idx] = 0;
-        if (self.mSettings.coverage) self.mAllTraced.push_back(static_cast<uint32_t>(idx));
+        scratch.mStamp[idx] = scratch.mGeneration;
+        scratch.mPending[idx] = 0;
+        if (self.mSettings.coverage) scratch.mAllTraced.push_back(static_cast<uint32_t>(idx));
         const Vec3 target = pointOf(q);
-        float& clear = self.mClear[idx];
+        float& clear = scratch.mClear[idx];
         clear = std::numeric_limits<float>::quiet_NaN();
         if (glm::dot(target - rec.point, rec.normal) <= 0.0) {
             s = kBelowHorizon;
@@ -157,14 +230,14 @@ struct ContourIntegrator::Lattice {
         // A first-level corner of the base grid may be answered by an earlier receiver
         // point's ray (reuseCorners).
         const int s0 = 2 << n;
-        ContourIntegrator::Corner* kept = nullptr;
+        Corner* kept = nullptr;
         if (self.mSettings.reuseCorners && firstLevel && q.a % s0 == 0 && q.b % s0 == 0) {
-            kept = self.reusableCorner(light, p, q.a / s0, q.b / s0);
+            kept = scratch.reusableCorner(light, p, q.a / s0, q.b / s0);
         }
-        ContourIntegrator::Corner ray;
+        Corner ray;
         if (kept && kept->answers(origin)) {
             ray = *kept;
-            ray.tangent[5] = 1.0f;  // its distances are the earlier point's
+            ray.geometry.stale = 1.0f;  // its distances are the earlier point's
             ray.cert = Certificate{};  // its disc is about the earlier point's segments
             ++counts.reusedRays;
         } else {
@@ -179,56 +252,54 @@ struct ContourIntegrator::Lattice {
             ray = traceRay(query, origin, target, self.mSettings,
                            firstLevel || certifyNext ? want : 0.0,
                            self.mSettings.distanceGuided && !lazy);
-            self.mPending[idx] = lazy;
+            scratch.mPending[idx] = lazy;
             if (kept) *kept = ray;
         }
         clear = ray.clear;
-        if (self.mSettings.tangentContour) {
-            std::copy(ray.tangent, ray.tangent + kTangentFloats, &self.mNormal[kTangentFloats * idx]);
-        }
+        if (self.mSettings.tangentContour) scratch.mGeometry[idx] = ray.geometry;
         s = ray.sample;
         if (self.mSettings.coverage) {
-            self.mCert[idx] = ray.cert;
+            scratch.mCert[idx] = ray.cert;
             if (ray.cert.radius > 0.0 || ray.cert.radiusOthers > 0.0)
-                self.mTraced.push_back(static_cast<uint32_t>(idx));
+                scratch.mTraced.push_back(static_cast<uint32_t>(idx));
         }
         return s;
     }
     bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
     float peek(LatticePoint q) const {
-        return self.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
+        return scratch.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
     }
     // The index of traced sample q, its clearance measured now if it was left for later
     // (sample()'s lazy rays): the same march, the same values, not counted as another ray.
     size_t settle(LatticePoint q) const {
         const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
-        if (self.mPending[idx] && self.mStamp[idx] == self.mGeneration) {
-            self.mPending[idx] = 0;
+        if (scratch.mPending[idx] && scratch.mStamp[idx] == scratch.mGeneration) {
+            scratch.mPending[idx] = 0;
             const Vec3 target = pointOf(q);
-            const Clearance c = query.clearance(origin, target, self.mSample[idx] != kVisible);
-            float* tangent = self.mSettings.tangentContour ? &self.mNormal[kTangentFloats * idx] : nullptr;
-            float scratch[kTangentFloats];
-            recordClearance(c, glm::length(target - origin), self.mClear[idx], tangent ? tangent : scratch);
+            const Clearance c = query.clearance(origin, target, scratch.mSample[idx] != kVisible);
+            RayGeometry unused;
+            recordClearance(c, glm::length(target - origin), scratch.mClear[idx],
+                            self.mSettings.tangentContour ? scratch.mGeometry[idx] : unused);
         }
         return idx;
     }
-    float clearanceOf(LatticePoint q) const { return self.mClear[settle(q)]; }
+    float clearanceOf(LatticePoint q) const { return scratch.mClear[settle(q)]; }
 
     Vec3 normalOf(LatticePoint q) const {
-        const float* t = &self.mNormal[kTangentFloats * settle(q)];
+        const float* t = scratch.mGeometry[settle(q)].normal;
         return Vec3(t[0], t[1], t[2]);
     }
     // Where q's ray passes closest to the surface, as a fraction of the ray (0 unknown).
     double closestFractionOf(LatticePoint q) const {
-        return self.mNormal[kTangentFloats * settle(q) + 3];
+        return scratch.mGeometry[settle(q)].closest;
     }
     // Whether q was answered by an earlier receiver point's ray (its distances approximate).
     bool staleOf(LatticePoint q) const {
-        return self.mNormal[kTangentFloats * settle(q) + 5] != 0.0f;
+        return scratch.mGeometry[settle(q)].stale != 0.0f;
     }
     // The obstacle q's clearance was measured to (-1 unknown).
     int obstacleOf(LatticePoint q) const {
-        return static_cast<int>(self.mNormal[kTangentFloats * settle(q) + 4]);
+        return static_cast<int>(scratch.mGeometry[settle(q)].obstacle);
     }
 
     // tangentContour: where the contour crosses the line X(t) = from + t dir (world, on the
@@ -580,7 +651,7 @@ struct ContourIntegrator::Lattice {
             if ((h[i] > 0.0) != (h[j] > 0.0)) pts[n++] = q[i] + (h[i] / (h[i] - h[j])) * (q[j] - q[i]);
         }
         if (n == 0) return true;  // below the horizon: hidden, no ray needed
-        for (const Disc& d : self.mDiscs) {
+        for (const Disc& d : scratch.mDiscs) {
             const double r2 = own >= 0 && d.obstacle == own ? std::max(d.r2, d.ro2) : d.r2;
             bool all = r2 > 0.0;
             for (int i = 0; i < n && all; ++i) {
@@ -603,21 +674,21 @@ struct ContourIntegrator::Lattice {
     // The obstacle of a gathered contour segment whose band (its width around it) holds the
     // whole cell, -1 when none (or the segment's obstacle is unknown).
     int bandOwner(const Vec3& centre, double halfDiag) const {
-        for (const Segment& g : self.mNearSegs) {
+        for (const Segment& g : scratch.mNearSegs) {
             if (g.own >= 0 && distanceToSegment(centre, g) + halfDiag <= g.width) return g.own;
         }
         return -1;
     }
 
     // Collects every uncovered cell of side `minSize` in the cell (a0, b0, size) into
-    // self.mUncovered, with its centre's distance to the nearest disc that would prove it.
+    // scratch.mUncovered, with its centre's distance to the nearest disc that would prove it.
     // `leafOwn` >= 0: the cell lies in a contour square whose pieces all belong to that
     // obstacle (the square is within its own contour's band).
     void uncoveredCells(double a0, double b0, double size, double minSize, int leafOwn) const {
         if (cellInDisc(a0, b0, size, -1)) return;
         (void)leafOwn;
         const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
-        if (!self.mNearSegs.empty()) {
+        if (!scratch.mNearSegs.empty()) {
             const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
                                                       light.point(a0 / N, b0 / N));
             const int own = bandOwner(c, halfDiag);
@@ -635,12 +706,12 @@ struct ContourIntegrator::Lattice {
             // piece's strip (its own term of the bound), not to what coverage left open.
             const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
                                                       light.point(a0 / N, b0 / N));
-            for (const Segment& g : self.mNearSegs)
+            for (const Segment& g : scratch.mNearSegs)
                 if (distanceToSegment(c, g) + halfDiag <= epsWorld) return;
         }
         Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), bandOwner(c, 0.0), c};
-        for (const Disc& d : self.mDiscs) gapTo(u, d);
-        self.mUncovered.push_back(u);
+        for (const Disc& d : scratch.mDiscs) gapTo(u, d);
+        scratch.mUncovered.push_back(u);
     }
 
     // Narrows an uncovered cell's distance to proven ground by one disc.
@@ -653,7 +724,7 @@ struct ContourIntegrator::Lattice {
     double uncoveredFormFactor() const {
         const double area = light.area() / (double(N) * N);
         double sum = 0.0;
-        for (const Uncovered& u : self.mUncovered) {
+        for (const Uncovered& u : scratch.mUncovered) {
             const Vec3 d = u.centre - rec.point;
             const double r2 = glm::dot(d, d);
             const double cosR = glm::dot(d, rec.normal) / std::sqrt(r2);
@@ -668,7 +739,7 @@ struct ContourIntegrator::Lattice {
     // counts the slivers between discs rather than whole cells.
     double finalUncoveredFormFactor() {
         std::vector<Uncovered> coarse;
-        coarse.swap(self.mUncovered);
+        coarse.swap(scratch.mUncovered);
         for (const Uncovered& u : coarse) {
             const int a0 = static_cast<int>(u.a0), b0 = static_cast<int>(u.b0), s = static_cast<int>(u.size);
             gatherNear(a0, b0, s);
@@ -682,16 +753,16 @@ struct ContourIntegrator::Lattice {
         const Vec3 centre = light.point((x0 + 0.5 * s) / N, (y0 + 0.5 * s) / N);
         const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                            glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
-        self.mDiscs.clear();
-        for (uint32_t idx : self.mTraced) {
-            const Certificate& c = self.mCert[idx];
+        scratch.mDiscs.clear();
+        for (uint32_t idx : scratch.mTraced) {
+            const Certificate& c = scratch.mCert[idx];
             const Vec3 p = pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))});
             if (glm::length(p - centre) >= std::max(c.radius, c.radiusOthers) + half) continue;
-            self.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
+            scratch.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
         }
-        self.mNearSegs.clear();
-        for (const Segment& g : self.mSegs)
-            if (distanceToSegment(centre, g) < g.width + half) self.mNearSegs.push_back(g);
+        scratch.mNearSegs.clear();
+        for (const Segment& g : scratch.mSegs)
+            if (distanceToSegment(centre, g) < g.width + half) scratch.mNearSegs.push_back(g);
     }
 
     // The lattice point where coverage wants its next ray: the centre (or a corner not yet
@@ -701,28 +772,28 @@ struct ContourIntegrator::Lattice {
     // that radius can hide there, or when `giveUp` (uncoveredFormFactor() then tells what stays
     // uncovered). The scan of a pass's leaves is updated incrementally as rays are added.
     bool nextCoverageSample(LatticePoint& out, bool giveUp) {
-        auto& cells = self.mUncovered;
+        auto& cells = scratch.mUncovered;
         if (mScanned == 0) {
             // A new pass: scan the leaves.
             cells.clear();
-            for (const Leaf& leaf : self.mLeaves) {
+            for (const Leaf& leaf : scratch.mLeaves) {
                 gatherNear(leaf.x0, leaf.y0, leaf.s);
                 int own = -1;
                 for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
-                    const int o = self.mSegs[i].own;
+                    const int o = scratch.mSegs[i].own;
                     own = i == leaf.seg0 || o == own ? o : -1;
                 }
                 uncoveredCells(leaf.x0, leaf.y0, leaf.s, kCoverageCell, own);
             }
-            mScanned = self.mTraced.size();
+            mScanned = scratch.mTraced.size();
         } else {
             // Only the discs traced since: drop the cells they cover, narrow the others' gaps.
-            for (size_t t = mScanned; t < self.mTraced.size(); ++t) {
-                const uint32_t idx = self.mTraced[t];
-                const Certificate& c = self.mCert[idx];
+            for (size_t t = mScanned; t < scratch.mTraced.size(); ++t) {
+                const uint32_t idx = scratch.mTraced[t];
+                const Certificate& c = scratch.mCert[idx];
                 const Disc d{pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))}),
                              c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle};
-                self.mDiscs.assign(1, d);
+                scratch.mDiscs.assign(1, d);
                 size_t kept = 0;
                 for (Uncovered& u : cells) {
                     if (cellInDisc(u.a0, u.b0, u.size, -1) ||
@@ -733,7 +804,7 @@ struct ContourIntegrator::Lattice {
                 }
                 cells.resize(kept);
             }
-            mScanned = self.mTraced.size();
+            mScanned = scratch.mTraced.size();
         }
         const Uncovered* far = nullptr;
         for (const Uncovered& u : cells)
@@ -743,7 +814,7 @@ struct ContourIntegrator::Lattice {
         const int h = static_cast<int>(far->size) / 2;
         const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
         for (const LatticePoint& q : cand) {
-            if (self.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != self.mGeneration) {
+            if (scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != scratch.mGeneration) {
                 out = q;
                 return true;
             }
@@ -754,11 +825,11 @@ struct ContourIntegrator::Lattice {
     // Whether a traced coverage sample lies in the square (x0, y0, s), corners excluded, with
     // another answer than the square's uniform one (visible: 1, hidden: 0; -1: any answer).
     bool markedInside(int x0, int y0, int s, int uniform) const {
-        for (uint32_t idx : self.mMarked) {
+        for (uint32_t idx : scratch.mMarked) {
             const int a = static_cast<int>(idx % (N + 1)), b = static_cast<int>(idx / (N + 1));
             if (a < x0 || a > x0 + s || b < y0 || b > y0 + s) continue;
             if ((a == x0 || a == x0 + s) && (b == y0 || b == y0 + s)) continue;
-            if (uniform < 0 || (self.mSample[idx] == kVisible) != (uniform == 1)) return true;
+            if (uniform < 0 || (scratch.mSample[idx] == kVisible) != (uniform == 1)) return true;
         }
         return false;
     }
@@ -768,10 +839,10 @@ struct ContourIntegrator::Lattice {
     // (say, two crossings of one side found from two squares of different sizes).
     bool contradicts(uint32_t idx) const {
         const LatticePoint q{static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))};
-        const float sv = self.mSample[idx];
+        const float sv = scratch.mSample[idx];
         if (sv == kBelowHorizon) return false;
         const int answer = sv == kVisible ? 1 : 0;
-        for (const Leaf& leaf : self.mLeaves) {
+        for (const Leaf& leaf : scratch.mLeaves) {
             if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
                 continue;
             if (leaf.type != 2) {
@@ -792,7 +863,7 @@ struct ContourIntegrator::Lattice {
         best = std::numeric_limits<double>::infinity();
         int side = 1;
         for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
-            const Segment& g = self.mSegs[i];
+            const Segment& g = scratch.mSegs[i];
             const double dist = distanceToSegment(p, g);
             if (dist < best) {
                 best = dist;
@@ -804,7 +875,7 @@ struct ContourIntegrator::Lattice {
 
     // What the current contour says about a light point: visible (1) or hidden (0).
     int predicted(LatticePoint q) const {
-        for (const Leaf& leaf : self.mLeaves) {
+        for (const Leaf& leaf : scratch.mLeaves) {
             if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
                 continue;
             if (leaf.type != 2) return leaf.type;
@@ -832,8 +903,8 @@ struct ContourIntegrator::Lattice {
                 if (!self.mSettings.coverage || passLevel == 0) return false;
                 const LatticePoint m = midpoint(c[i], c[j]);
                 const uint32_t idx = static_cast<uint32_t>(static_cast<size_t>(m.b) * (N + 1) + m.a);
-                if (std::find(self.mMarked.begin(), self.mMarked.end(), idx) == self.mMarked.end()) {
-                    self.mMarked.push_back(idx);
+                if (std::find(scratch.mMarked.begin(), scratch.mMarked.end(), idx) == scratch.mMarked.end()) {
+                    scratch.mMarked.push_back(idx);
                     remark = true;
                 }
             }
@@ -865,7 +936,7 @@ struct ContourIntegrator::Lattice {
                 ++counts.squaresSplitForCoverage;
                 return split(x0, y0, k, thr, depth, v, onBorder);
             }
-            if (self.mSettings.coverage) self.mLeaves.push_back({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
+            if (self.mSettings.coverage) scratch.mLeaves.push_back({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
             if (nVisible == 4)
                 for (int i = 0; i < 4; ++i)
                     if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
@@ -995,7 +1066,7 @@ struct ContourIntegrator::Lattice {
             // The contour as segments (each piece: its ends and its middle) with the obstacle
             // it belongs to when both ends agree (the horizon belongs to none), and the band
             // around it where only that obstacle's discs need to exclude the others.
-            const uint32_t seg0 = static_cast<uint32_t>(self.mSegs.size());
+            const uint32_t seg0 = static_cast<uint32_t>(scratch.mSegs.size());
             // Half a first-level square (at this pass's level) on either side: a refined square's
             // contour keeps its first-level square's band.
             const double band = 0.5 * double(2 << (n - passLevel)) * unit;
@@ -1013,10 +1084,10 @@ struct ContourIntegrator::Lattice {
                 int own = a.obstacle;
                 if (own == kHorizonContour) own = b.obstacle;
                 if (b.obstacle != own && b.obstacle != kHorizonContour) own = -1;
-                self.mSegs.push_back({a.c, mid, band, own});
-                self.mSegs.push_back({mid, b.c, band, own});
+                scratch.mSegs.push_back({a.c, mid, band, own});
+                scratch.mSegs.push_back({mid, b.c, band, own});
             }
-            self.mLeaves.push_back({x0, y0, s, 2, seg0, static_cast<uint32_t>(self.mSegs.size())});
+            scratch.mLeaves.push_back({x0, y0, s, 2, seg0, static_cast<uint32_t>(scratch.mSegs.size())});
             // What each piece's data leave open: the strip of the vertices' uncertainty, and
             // for a tangent arc the part of its tangent triangle the arc may miss (two thirds
             // without a shoulder ray, a quarter with one), for a checked piece half the change
@@ -1083,7 +1154,7 @@ struct ContourIntegrator::Lattice {
         for (const Vec3& q : light.polygon())
             if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
         const bool vis = visible(centre, true);
-        const Certificate& cert = self.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
+        const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
         for (const Vec3& q : light.polygon())
             if (!(glm::length(q - pc) < cert.radius)) return false;
         if (vis) {
@@ -1099,8 +1170,8 @@ struct ContourIntegrator::Lattice {
         dg = Mat3(0.0);
         bound = 0.0;
         passLevel = r;
-        self.mLeaves.clear();
-        self.mSegs.clear();
+        scratch.mLeaves.clear();
+        scratch.mSegs.clear();
         const int k = n - r;
         const int s = 2 << k;
         const int squares = p << r;
@@ -1113,10 +1184,26 @@ struct ContourIntegrator::Lattice {
     }
 };
 
-ContourIntegrator::ContourIntegrator(const AciSettings& settings) : mSettings(settings) {}
+ContourIntegrator::ContourIntegrator(const AciSettings& settings)
+    : mSettings(settings), mScratch(std::make_unique<Scratch>()) {}
+ContourIntegrator::ContourIntegrator(const ContourIntegrator& other)
+    : mSettings(other.mSettings), mScratch(std::make_unique<Scratch>(*other.mScratch)) {}
+ContourIntegrator& ContourIntegrator::operator=(const ContourIntegrator& other) {
+    if (this != &other) {
+        mSettings = other.mSettings;
+        mScratch = std::make_unique<Scratch>(*other.mScratch);
+    }
+    return *this;
+}
+ContourIntegrator::ContourIntegrator(ContourIntegrator&&) noexcept = default;
+ContourIntegrator& ContourIntegrator::operator=(ContourIntegrator&&) noexcept = default;
+ContourIntegrator::~ContourIntegrator() = default;
+
+void ContourIntegrator::forgetCorners() { mScratch->mCorners.clear(); }
 
 Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                                      Occluder::Query& query) {
+    Scratch& sc = *mScratch;
     Estimate est;
     if (!facesLight(light, r.point)) return est;
     bool above = false;
@@ -1129,7 +1216,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     Lattice lat(*this, r, light, query, p, n);
     if (mSettings.coverage && lat.wholeLight()) {
         // One ray whose disc covers the light decides it: all visible or all hidden.
-        const bool vis = mSample[static_cast<size_t>(lat.N / 2) * (lat.N + 1) + lat.N / 2] == kVisible;
+        const bool vis = sc.mSample[static_cast<size_t>(lat.N / 2) * (lat.N + 1) + lat.N / 2] == kVisible;
         est.pattern.assign(static_cast<size_t>(p + 1) * (p + 1), vis ? 1 : 0);
         est.g = lat.g / (2.0 * kPi);
         est.dg = lat.dg / (2.0 * kPi);
@@ -1155,10 +1242,10 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // contradicting coverage ray.
         bool again = false;
         if (repasses < kMaxRepasses) {
-            for (uint32_t idx : mAllTraced) {
+            for (uint32_t idx : sc.mAllTraced) {
                 if (!lat.contradicts(idx)) continue;
-                if (std::find(mMarked.begin(), mMarked.end(), idx) != mMarked.end()) continue;
-                mMarked.push_back(idx);
+                if (std::find(sc.mMarked.begin(), sc.mMarked.end(), idx) != sc.mMarked.end()) continue;
+                sc.mMarked.push_back(idx);
                 again = true;
             }
             if (again) {
@@ -1178,7 +1265,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             lat.certifyNext = false;
             if ((vis ? 1 : 0) != lat.predicted(q) && repasses < kMaxRepasses) {
                 ++repasses;
-                mMarked.push_back(static_cast<uint32_t>(static_cast<size_t>(q.b) * (lat.N + 1) + q.a));
+                sc.mMarked.push_back(static_cast<uint32_t>(static_cast<size_t>(q.b) * (lat.N + 1) + q.a));
                 again = true;
                 break;
             }
@@ -1193,7 +1280,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     for (int j = 0; j <= p; ++j)
         for (int i = 0; i <= p; ++i) {
             const size_t idx = static_cast<size_t>(j * s0) * (lat.N + 1) + i * s0;
-            est.pattern[static_cast<size_t>(j) * (p + 1) + i] = mSample[idx] == kVisible;
+            est.pattern[static_cast<size_t>(j) * (p + 1) + i] = sc.mSample[idx] == kVisible;
         }
     est.g = lat.g / (2.0 * kPi);
     est.dg = lat.dg / (2.0 * kPi);
@@ -1204,7 +1291,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     return est;
 }
 
-ContourIntegrator::Corner* ContourIntegrator::reusableCorner(const RectLight& light, int grid,
+Corner* ContourIntegrator::Scratch::reusableCorner(const RectLight& light, int grid,
                                                              int i, int j) {
     const size_t count = static_cast<size_t>(grid + 1) * (grid + 1);
     if (mCorners.size() != count || mCornerGrid != grid || mCornerLight.corner != light.corner ||
@@ -1232,7 +1319,7 @@ std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLig
                 o = !query.occluded(origin, target);
                 continue;
             }
-            Corner* kept = reusableCorner(light, p, i, j);
+            Corner* kept = mScratch->reusableCorner(light, p, i, j);
             if (kept->answers(origin)) {
                 ++counts.reusedRays;
             } else {
