@@ -39,6 +39,7 @@
 
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "penumbra/json_reader.h"
 #include "penumbra/output_files.h"
 #include "thread_sanitizer.h"
 
@@ -54,18 +55,7 @@ constexpr int kMaxShards = 1000000;
 constexpr const char* kHashAttribute = "penumbra:job_hash";
 
 // ---------------------------------------------------------------------------------------------
-// Text and files
-
-std::string readTextFile(const std::string& path, const std::string& what) {
-    std::error_code ec;
-    if (fs::is_directory(path, ec)) throw InputError(path, "", "is a directory, not " + what);
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path, "", "cannot open " + what + ": " + std::strerror(errno));
-    std::ostringstream text;
-    text << in.rdbuf();
-    if (in.bad()) throw InputError(path, "", "cannot read " + what);
-    return text.str();
-}
+// Paths (files are read, and parsed as strict JSON, by json_reader.h)
 
 std::string parentDir(const std::string& path) {
     std::string dir = fs::path(path).parent_path().string();
@@ -82,108 +72,6 @@ std::string resolvePath(const std::string& baseDir, const std::string& path) {
 // temporaryPathFor (output_files.h): unique per host, process and write, so that two jobs, or
 // two runs, writing next to one file never share a temporary, and removeStaleTemporaries can
 // tell a dead process's leftovers from a live run's.
-
-std::pair<int, int> lineColumn(const std::string& text, size_t byte) {
-    int line = 1, column = 0;
-    for (size_t i = 0; i < text.size() && i < byte; ++i) {
-        if (text[i] == '\n') {
-            ++line;
-            column = 0;
-        } else {
-            ++column;
-        }
-    }
-    return {line, column};
-}
-
-std::string pointerToken(const std::string& key) {
-    std::string out;
-    for (char c : key) {
-        if (c == '~') {
-            out += "~0";
-        } else if (c == '/') {
-            out += "~1";
-        } else {
-            out += c;
-        }
-    }
-    return out;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Strict JSON: comments allowed, a repeated key is an error (nlohmann would keep the last one
-// silently, and a manifest where "output" appears twice is almost certainly a mistake).
-
-class DuplicateKeyFinder {
-public:
-    struct Duplicate {
-        std::string pointer;
-        std::string key;
-    };
-
-    bool operator()(int /*depth*/, Json::parse_event_t event, Json& parsed) {
-        switch (event) {
-            case Json::parse_event_t::object_start: mFrames.emplace_back(true); break;
-            case Json::parse_event_t::array_start: mFrames.emplace_back(false); break;
-            case Json::parse_event_t::key: {
-                Frame& f = mFrames.back();
-                f.key = parsed.get<std::string>();
-                if (!f.seen.insert(f.key).second) throw Duplicate{pointer(), f.key};
-                break;
-            }
-            case Json::parse_event_t::object_end:
-            case Json::parse_event_t::array_end:
-                mFrames.pop_back();
-                next();
-                break;
-            case Json::parse_event_t::value: next(); break;
-        }
-        return true;
-    }
-
-private:
-    struct Frame {
-        explicit Frame(bool object) : isObject(object) {}
-        bool isObject;
-        std::string key;
-        size_t index = 0;
-        std::set<std::string> seen;
-    };
-    void next() {
-        if (!mFrames.empty() && !mFrames.back().isObject) ++mFrames.back().index;
-    }
-    std::string pointer() const {
-        std::string p;
-        for (const Frame& f : mFrames) {
-            p += "/" + (f.isObject ? pointerToken(f.key) : std::to_string(f.index));
-        }
-        return p;
-    }
-    std::vector<Frame> mFrames;
-};
-
-Json parseStrictJson(const std::string& text, const std::string& file) {
-    DuplicateKeyFinder finder;
-    Json::parser_callback_t callback = [&finder](int depth, Json::parse_event_t event,
-                                                 Json& parsed) {
-        return finder(depth, event, parsed);
-    };
-    try {
-        return Json::parse(text, callback, /*allow_exceptions=*/true, /*ignore_comments=*/true);
-    } catch (const DuplicateKeyFinder::Duplicate& d) {
-        throw InputError(file, d.pointer, "duplicate key '" + d.key + "'");
-    } catch (const Json::parse_error& e) {
-        const auto [line, column] = lineColumn(text, e.byte);
-        std::string reason = e.what();
-        const size_t colon = reason.find("error: ");
-        if (colon != std::string::npos) reason = reason.substr(colon + 7);
-        throw InputError(file, "",
-                         "malformed JSON at line " + std::to_string(line) + ", column " +
-                             std::to_string(column) + ": " + reason);
-    } catch (const Json::exception& e) {
-        throw InputError(file, "", std::string(e.what()) + " (numbers must be finite)");
-    }
-}
 
 // ---------------------------------------------------------------------------------------------
 // JSON pointers (RFC 6901)

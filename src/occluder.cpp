@@ -594,7 +594,8 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
 // ---------------------------------------------------------------------------------------------
 // Obstacle kinds
 //
-// What the query asks of an obstacle, one struct per kind with the same members:
+// What the query asks of an obstacle, one struct per kind (AnalyticKind<AnalyticSphere>,
+// AnalyticKind<AnalyticBox>, LevelSetKind) with the same members:
 //   clearance(from, dir, invDir, t0, t1, near): the signed closest approach of the segment
 //       from + t dir, t in [t0, t1] (Clearance), with `bound` the proven part of it (exact
 //       for analytic shapes); `near` false when the segment stays beyond what the kind can
@@ -607,13 +608,41 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
 
 namespace {
 
-struct SphereKind {
-    const AnalyticSphere& sphere;
+// The analytic kinds' exact answers, by overload.
+Clearance analyticClearance(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double t0,
+                            double t1) {
+    return sphereClearance(s, from, dir, t0, t1);
+}
+Clearance analyticClearance(const AnalyticBox& b, const Vec3& from, const Vec3& dir, double t0,
+                            double t1) {
+    return boxClearance(b, from, dir, t0, t1);
+}
+// The first hit, given the segment's interval [t0, ...] inside the bounds.
+bool analyticHit(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, double, double tMin,
+                 double tMax, double& t) {
+    return hitSphere(s, from, dir, tMin, tMax, &t);
+}
+bool analyticHit(const AnalyticBox&, const Vec3&, const Vec3&, double t0, double tMin, double,
+                 double& t) {
+    t = t0 > tMin ? t0 : 0.0;  // the bounds are the box itself: the clipped interval is the answer
+    return true;
+}
+double analyticRadius(const AnalyticSphere& s, const Vec3& m, const Vec3& v) {
+    return sphereRadius(s, m, v);
+}
+double analyticRadius(const AnalyticBox& b, const Vec3& m, const Vec3& v) {
+    return boxRadius(b, m, v);
+}
+
+// A sphere or a box: exact distances, exact hits, exact certificates.
+template <class Shape>
+struct AnalyticKind {
+    const Shape& shape;
 
     Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3&, double t0, double t1,
                         bool& near) const {
         near = true;
-        Clearance c = sphereClearance(sphere, from, dir, t0, t1);
+        Clearance c = analyticClearance(shape, from, dir, t0, t1);
         c.bound = c.distance;  // exact
         return c;
     }
@@ -621,33 +650,10 @@ struct SphereKind {
              double tMin, double tMax, double& t) const {
         double t0 = tMin, t1 = tMax;
         if (!bounds.clipRay(from, invDir, t0, t1)) return false;
-        return hitSphere(sphere, from, dir, tMin, tMax, &t);
+        return analyticHit(shape, from, dir, t0, tMin, tMax, t);
     }
     double radius(const Vec3& m, const Vec3& v, double, bool, double) const {
-        return sphereRadius(sphere, m, v);
-    }
-};
-
-struct BoxKind {
-    const AnalyticBox& box;
-
-    Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3&, double t0, double t1,
-                        bool& near) const {
-        near = true;
-        Clearance c = boxClearance(box, from, dir, t0, t1);
-        c.bound = c.distance;  // exact
-        return c;
-    }
-    bool hit(const Vec3& from, const Vec3&, const Vec3& invDir, const Box3& bounds, double tMin,
-             double tMax, double& t) const {
-        // The bounds are the box itself, so the clipped interval is the answer.
-        double t0 = tMin, t1 = tMax;
-        if (!bounds.clipRay(from, invDir, t0, t1)) return false;
-        t = t0 > tMin ? t0 : 0.0;
-        return true;
-    }
-    double radius(const Vec3& m, const Vec3& v, double, bool, double) const {
-        return boxRadius(box, m, v);
+        return analyticRadius(shape, m, v);
     }
 };
 
@@ -711,8 +717,10 @@ struct LevelSetKind {
 template <class F>
 decltype(auto) Occluder::Query::visitKind(size_t i, F&& f) {
     const ObstacleShape& shape = mOccluder->shape(i);
-    if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) return f(SphereKind{*sphere});
-    if (const auto* box = std::get_if<AnalyticBox>(&shape)) return f(BoxKind{*box});
+    if (const auto* sphere = std::get_if<AnalyticSphere>(&shape)) {
+        return f(AnalyticKind<AnalyticSphere>{*sphere});
+    }
+    if (const auto* box = std::get_if<AnalyticBox>(&shape)) return f(AnalyticKind<AnalyticBox>{*box});
     return f(LevelSetKind{*std::get<LevelSetPtr>(shape), mImpl->levelSets[i].get(),
                           *mOccluder->mFar[i], mOccluder->bounds(i)});
 }

@@ -338,6 +338,24 @@ TEST_CASE("a bad manifest is refused with the JSON pointer of the bad value", "[
           "/jobs/0/output");  // a repeated key
 }
 
+TEST_CASE("a malformed manifest is reported by line and column in characters", "[batch]") {
+    // Line 2 holds "ñandú" (7 bytes, 5 characters) before the missing comma: the offending token
+    // "seed" ends at character 50 (byte 52), and the column counts characters, as the scene
+    // loader's does.
+    const std::string text = "{\"jobs\": [\n"
+                             "  {\"scene\": \"\xc3\xb1\x61nd\xc3\xba.json\", \"output\": \"a.exr\" "
+                             "\"seed\": 1}]}";
+    try {
+        parseManifest(text, "m.json", "/tmp");
+        FAIL("accepted a malformed manifest");
+    } catch (const InputError& e) {
+        CHECK(e.file() == "m.json");
+        CHECK(e.where() == "");
+        CHECK_THAT(e.message(), Catch::StartsWith("malformed JSON at line 2, column 50: "));
+        CHECK_THAT(e.message(), !Catch::Contains("json.exception"));
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Running, in process
 

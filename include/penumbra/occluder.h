@@ -193,7 +193,7 @@ private:
     // occluded() with `known` < 0; with known = 0 or 1 the answer is taken as given and only
     // the clearance is measured.
     bool trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance, int known);
-    // Calls f with obstacle i's kind (occluder.cpp: SphereKind, BoxKind, LevelSetKind).
+    // Calls f with obstacle i's kind (occluder.cpp: AnalyticKind, LevelSetKind).
     template <class F>
     decltype(auto) visitKind(size_t i, F&& f);
 
