@@ -1361,12 +1361,8 @@ std::string sidecarPath(const std::string& output) { return output + ".job.json"
 std::string failureRecordPath(const std::string& output) { return output + ".failed.json"; }
 
 const char* jobStateName(JobState state) {
-    switch (state) {
-        case JobState::Done: return "done";
-        case JobState::Failed: return "failed";
-        case JobState::Missing: return "missing";
-    }
-    return "?";
+    static const char* const names[] = {"done", "failed", "missing"};  // JobState's order
+    return names[static_cast<int>(state)];
 }
 
 std::vector<JobRecord> readJobRecords(const BatchManifest& manifest,
@@ -1406,12 +1402,8 @@ std::vector<JobRecord> readJobRecords(const BatchManifest& manifest,
 }
 
 const char* jobStatusName(JobStatus status) {
-    switch (status) {
-        case JobStatus::Rendered: return "rendered";
-        case JobStatus::Skipped: return "skipped";
-        case JobStatus::Failed: return "failed";
-    }
-    return "failed";
+    static const char* const names[] = {"rendered", "skipped", "failed"};  // JobStatus's order
+    return names[static_cast<int>(status)];
 }
 
 std::vector<JobResult> runBatch(const BatchManifest& manifest, const std::vector<size_t>& selected,

@@ -350,14 +350,7 @@ Vec3 gradientAt(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& p) {
         return double(openvdb::tools::BoxSampler::sample(
             acc, grid.worldToIndex(openvdb::Vec3d(q.x, q.y, q.z))));
     };
-    Vec3 g;
-    for (int k = 0; k < 3; ++k) {
-        Vec3 e(0.0);
-        e[k] = h;
-        g[k] = phi(p + e) - phi(p - e);
-    }
-    const double len = glm::length(g);
-    return len > 0.0 ? g / len : Vec3(0.0);
+    return unitGradient(phi, p, h);
 }
 
 /// Smallest value of `grid` along the segment from + t dir, t in [t0, t1], by sphere tracing

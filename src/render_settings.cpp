@@ -14,12 +14,8 @@ namespace penumbra {
 // ACI modes
 
 const char* aciModeName(AciMode mode) {
-    switch (mode) {
-        case AciMode::Paper: return "paper";
-        case AciMode::Arcs: return "arcs";
-        case AciMode::Tangent: return "tangent";
-    }
-    return "tangent";
+    static const char* const names[] = {"paper", "arcs", "tangent"};  // AciMode's order
+    return names[static_cast<int>(mode)];
 }
 
 AciMode parseAciMode(const std::string& name, const std::string& where) {

@@ -964,20 +964,10 @@ void readTreeGrids(ShapeNode& root, const std::string& pointer, const std::strin
     });
 }
 
-ObstacleBuild reportFor(const std::string& name, const std::string& type, const LevelSetPtr& ls) {
-    const LevelSetInfo info = describe(*ls);
-    ObstacleBuild b;
-    b.name = name;
-    b.type = type;
-    b.voxelSize = info.voxelSize;
-    b.activeVoxels = info.activeVoxels;
-    b.bytes = info.bytes;
-    return b;
-}
-
-ObstacleBuild reportForVolume(const std::string& name, const std::string& type,
-                              const VolumeGridPtr& v) {
-    const VolumeInfo info = describe(*v);
+// The build report of a level set or a volume grid (describe() gives both the same fields).
+template <class Grid>
+ObstacleBuild reportFor(const std::string& name, const std::string& type, const Grid& grid) {
+    const auto info = describe(*grid);
     ObstacleBuild b;
     b.name = name;
     b.type = type;
@@ -1006,7 +996,7 @@ void buildFog(ObstaclePlan& plan, const std::string& file, std::vector<Volume>& 
         const VolumeGridPtr v =
             fogFromLevelSet(*std::get<LevelSetPtr>(shapes[j].shape), fog.density, fog.falloff, n);
         volumes.push_back({n, v, fog.extinction, plan.albedo});
-        ObstacleBuild r = reportForVolume(n, "fog", v);
+        ObstacleBuild r = reportFor(n, "fog", v);
         r.estimatedBytes = j == 0 ? estimatedBytes(plan) : 0.0;
         r.seconds = j == 0 ? secondsSince(start) : 0.0;
         r.note = "fog volume";
@@ -1034,7 +1024,7 @@ void buildVdbVolumes(const ObstaclePlan& plan, const std::string& file, const st
         if (grids.size() > 1 && !plan.name.empty()) n = plan.name + "/" + gridName2;
         if (n.empty()) n = "obstacle_" + std::to_string(plan.index);
         volumes.push_back({n, g, vdb.extinction, plan.albedo});
-        ObstacleBuild r = reportForVolume(n, plan.type, g);
+        ObstacleBuild r = reportFor(n, plan.type, g);
         r.seconds = j == 0 ? seconds : 0.0;
         r.note = "fog volume read from " + vdb.path;
         report.volumes.push_back(r);

@@ -81,13 +81,9 @@ Similarity operator*(const Similarity& outer, const Similarity& inner) {
 }
 
 const char* csgOpName(CsgOp op) {
-    switch (op) {
-        case CsgOp::Union: return "union";
-        case CsgOp::Intersection: return "intersection";
-        case CsgOp::Difference: return "difference";
-        case CsgOp::SmoothUnion: return "smooth_union";
-    }
-    return "?";
+    // CsgOp's order.
+    static const char* const names[] = {"union", "intersection", "difference", "smooth_union"};
+    return names[static_cast<int>(op)];
 }
 
 const char* shapeTypeName(const ShapeNode& node) {

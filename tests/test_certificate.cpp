@@ -154,15 +154,7 @@ Exact exactRadius(const Sdf& sdf, const Vec3& m, const Vec3& v, int dense) {
 
 /// Unit gradient of an sdf by central differences.
 Vec3 gradient(const Sdf& sdf, const Vec3& p) {
-    const double h = 1e-6;
-    Vec3 g;
-    for (int k = 0; k < 3; ++k) {
-        Vec3 e(0.0);
-        e[k] = h;
-        g[k] = sdf(p + e) - sdf(p - e);
-    }
-    const double l = glm::length(g);
-    return l > 0.0 ? g / l : Vec3(0.0);
+    return unitGradient(sdf, p, 1e-6);
 }
 
 std::string fmt(const Vec3& p) {

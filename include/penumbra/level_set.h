@@ -20,14 +20,17 @@ namespace penumbra {
 class LevelSet;  // wraps openvdb::FloatGrid::ConstPtr; see src/level_set_impl.h
 using LevelSetPtr = std::shared_ptr<const LevelSet>;
 
-/// What a user (and the statistics) may want to know about a level set.
-struct LevelSetInfo {
+/// What a user (and the statistics) may want to know about a grid: a level set or a volume.
+struct GridInfo {
     std::string name;
-    double voxelSize = 0.0;     ///< world units
-    double halfWidth = 0.0;     ///< narrow-band half width, in voxels
-    Box3 boundsWS;              ///< world-space bounds of the active voxels
+    double voxelSize = 0.0;     ///< world units (the smallest voxel edge)
+    Box3 boundsWS;              ///< world-space bounds of the active voxels (and tiles)
     uint64_t activeVoxels = 0;
     uint64_t bytes = 0;         ///< in-memory size of the tree
+};
+
+struct LevelSetInfo : GridInfo {
+    double halfWidth = 0.0;     ///< narrow-band half width, in voxels
 };
 LevelSetInfo describe(const LevelSet& ls);
 

@@ -80,4 +80,18 @@ GoldenSection goldenSection(F&& f, double a, double z, int maxSteps, double tole
     return g;
 }
 
+/// The unit gradient of a scalar field `f` at p by central differences h apart on each axis;
+/// zero where f is flat there.
+template <class F>
+Vec3 unitGradient(F&& f, const Vec3& p, double h) {
+    Vec3 g;
+    for (int k = 0; k < 3; ++k) {
+        Vec3 e(0.0);
+        e[k] = h;
+        g[k] = f(p + e) - f(p - e);
+    }
+    const double len = glm::length(g);
+    return len > 0.0 ? g / len : Vec3(0.0);
+}
+
 }  // namespace penumbra

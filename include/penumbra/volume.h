@@ -22,13 +22,8 @@ namespace penumbra {
 class VolumeGrid;  // wraps openvdb::FloatGrid::ConstPtr; see src/volume.cpp
 using VolumeGridPtr = std::shared_ptr<const VolumeGrid>;
 
-struct VolumeInfo {
-    std::string name;
-    double voxelSize = 0.0;  ///< world units (the smallest voxel edge)
-    Box3 boundsWS;           ///< world box of the active voxels and tiles, empty if none
-    uint64_t activeVoxels = 0;
+struct VolumeInfo : GridInfo {
     double maxDensity = 0.0;
-    uint64_t bytes = 0;
 };
 VolumeInfo describe(const VolumeGrid& volume);
 

@@ -560,6 +560,14 @@ py::tuple renderScene(const PyScene& self, py::handle width, py::handle height,
     return py::make_tuple(imageArray(std::move(result.color)), jsonLoads(stats.toJson()));
 }
 
+// The `name` of every element, in order.
+template <class Things>
+std::vector<std::string> namesOf(const Things& things) {
+    std::vector<std::string> names;
+    for (const auto& t : things) names.push_back(t.name);
+    return names;
+}
+
 py::dict settingRanges() {
     py::dict d;
     for (const auto& [key, r] : RenderSettings::integerRanges()) d[key.c_str()] = py::make_tuple(r.lo, r.hi);
@@ -623,20 +631,10 @@ PYBIND11_MODULE(penumbra, m) {
             "file", [](const PyScene& s) { return s.scene().file; },
             "The file the scene came from (from_dict: its `file`).")
         .def_property_readonly(
-            "lights",
-            [](const PyScene& s) {
-                std::vector<std::string> names;
-                for (const auto& l : s.scene().lights) names.push_back(l.name);
-                return names;
-            },
+            "lights", [](const PyScene& s) { return namesOf(s.scene().lights); },
             "The lights' names, in scene order.")
         .def_property_readonly(
-            "obstacles",
-            [](const PyScene& s) {
-                std::vector<std::string> names;
-                for (const auto& o : s.scene().obstacles) names.push_back(o.name);
-                return names;
-            },
+            "obstacles", [](const PyScene& s) { return namesOf(s.scene().obstacles); },
             "The obstacles' names, in scene order.")
         .def_property_readonly(
             "camera", [](const PyScene& s) { return cameraDict(s.scene()); },
