@@ -56,6 +56,7 @@ struct Uncovered {  // a cell of the light no disc or band proves yet
     double gap;           // its centre's distance to the nearest disc that would prove it
     int own;              // the obstacle of the contour band it is in, -1 none
     Vec3 centre;
+    bool exhausted = false;  // every lattice point coverage may ask in it is traced
 };
 
 }  // namespace
@@ -88,7 +89,13 @@ constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
-constexpr double kCoverageCell = 8.0;   // coverage cells, in lattice units (1/8 of a default first-level square)
+// Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
+// within half an interval of its every point and the stopping rule on centres (every uncovered
+// point within coverageGap intervals of proven ground) holds for points. With cells of 8 units a
+// shadow of 1.8 intervals' radius could hide between centres (seed 17 of the random sphere scenes).
+constexpr double kCoverageCell = 2.0;
+constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
+constexpr double kHalfSqrt2 = 0.7071067811865476;
 // tangentContour keeps per sample: the distance gradient (3), where the ray passes closest as a
 // fraction of its length, the obstacle it was measured to, and 1 when the sample was answered by
 // an earlier receiver point's ray (reuseCorners: its distances are approximate).
@@ -269,6 +276,23 @@ struct ContourIntegrator::Lattice {
     float peek(LatticePoint q) const {
         return scratch.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
     }
+    bool traced(LatticePoint q) const {
+        return scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] == scratch.mGeneration;
+    }
+    // Narrows the bracket lo -> hi (visible, hidden; positions of `at`) with samples traced
+    // between them for other reasons: free information a vertex must agree with.
+    template <class At>
+    void narrowByTraced(const At& at, int& lo, int& hi) const {
+        for (int j = lo + 1; j < hi; ++j) {
+            if (!traced(at(j))) continue;
+            if (peek(at(j)) == kVisible) {
+                lo = j;
+            } else {
+                hi = j;
+                break;
+            }
+        }
+    }
     // The index of traced sample q, its clearance measured now if it was left for later
     // (sample()'s lazy rays): the same march, the same values, not counted as another ray.
     size_t settle(LatticePoint q) const {
@@ -334,7 +358,8 @@ struct ContourIntegrator::Lattice {
     // its distance), rounded toward the visible end so that the probe tends to be a visible ray
     // just off the surface, whose gradient is the most reliable; after `guidedProbes` probes
     // (at least one) the vertex is placed by the same rule inside the final bracket.
-    Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps) {
+    Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
+                          LatticePoint& finalHid) {
         const int count = 1 << steps;
         const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
         auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
@@ -382,6 +407,9 @@ struct ContourIntegrator::Lattice {
             const int j = std::clamp(static_cast<int>(std::floor(g.e)), lo + 1, hi - 1);
             (visible(at(j)) ? lo : hi) = j;
         }
+        narrowByTraced(at, lo, hi);
+        finalVis = at(lo);
+        finalHid = at(hi);
         const Guess g = estimate(lo, hi);
         const double e = std::clamp(g.e, double(lo), double(hi));
         Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
@@ -554,9 +582,57 @@ struct ContourIntegrator::Lattice {
     // the receiver's tangent plane. With distanceGuided, samples go where the secant through
     // the ends' signed clearances puts the silhouette (still lattice points, still narrowing
     // to one final interval) and the vertex is interpolated inside that interval.
+    // The contour vertex on the segment vis -> hid (vis visible, hid hidden), by dichotomy.
+    // In the distance-guided modes where a dichotomy stops depends on the side's length, so
+    // two squares of different sizes sharing part of a side (a T-junction) would place their
+    // vertices differently and leave a gap in the contour: a crossing of a light-lattice line
+    // is therefore kept with its final bracket, and any later side holding that bracket (the
+    // same way round) takes the same vertex.
     Vertex crossing(LatticePoint vis, LatticePoint hid, int steps) {
+        const bool onLine = self.mSettings.distanceGuided && (vis.a == hid.a || vis.b == hid.b);
+        if (onLine) {
+            if (const Vertex* known = knownCrossing(vis, hid)) return *known;
+        }
+        LatticePoint fv = vis, fh = hid;
+        Vertex v = crossingOnSegment(vis, hid, steps, fv, fh);
+        if (onLine) crossings.push_back({fv, fh, v});
+        return v;
+    }
+
+    struct KnownCrossing {
+        LatticePoint vis, hid;  // its final bracket
+        Vertex v;
+    };
+    std::vector<KnownCrossing> crossings;  // distance-guided modes: crossings of lattice lines
+
+    // A crossing found earlier whose final bracket lies on the segment vis -> hid, oriented
+    // the same way.
+    const Vertex* knownCrossing(LatticePoint vis, LatticePoint hid) const {
+        const bool horizontal = vis.b == hid.b;
+        const int line = horizontal ? vis.b : vis.a;
+        const int v0 = horizontal ? vis.a : vis.b, h0 = horizontal ? hid.a : hid.b;
+        const int lo = std::min(v0, h0), hi = std::max(v0, h0);
+        for (const KnownCrossing& k : crossings) {
+            const bool kh = k.vis.b == k.hid.b;
+            if (kh != horizontal || (kh ? k.vis.b : k.vis.a) != line) continue;
+            const int kv = kh ? k.vis.a : k.vis.b, kd = kh ? k.hid.a : k.hid.b;
+            if (std::min(kv, kd) < lo || std::max(kv, kd) > hi) continue;
+            if ((kv < kd) != (v0 < h0)) continue;
+            // Stale when a sample traced since lies inside its bracket.
+            const int step = kv < kd ? 1 : -1;
+            bool stale = false;
+            for (int j = kv + step; j != kd && !stale; j += step)
+                stale = traced(kh ? LatticePoint{j, line} : LatticePoint{line, j});
+            if (stale) continue;
+            return &k.v;
+        }
+        return nullptr;
+    }
+
+    Vertex crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
+                             LatticePoint& finalHid) {
         if (self.mSettings.tangentContour && self.mSettings.distanceGuided && steps > 0)
-            return crossingNewton(vis, hid, steps);
+            return crossingNewton(vis, hid, steps, finalVis, finalHid);
         if (!self.mSettings.distanceGuided) {
             for (int i = 0; i < steps; ++i) {
                 const LatticePoint m = midpoint(vis, hid);
@@ -585,6 +661,8 @@ struct ContourIntegrator::Lattice {
             (visible(at(j)) ? lo : hi) = j;
             if (secant && 2 * (hi - lo) > before) ++slow;  // secant stalling: bisect instead
         }
+        finalVis = at(lo);
+        finalHid = at(hi);
         const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
         const double f = (cl > 0.0f && ch < 0.0f) ? double(cl) / (double(cl) - double(ch)) : 0.5;
         return vertexBetween(at(lo), at(hi), f);
@@ -783,7 +861,7 @@ struct ContourIntegrator::Lattice {
                     const int o = scratch.mSegs[i].own;
                     own = i == leaf.seg0 || o == own ? o : -1;
                 }
-                uncoveredCells(leaf.x0, leaf.y0, leaf.s, kCoverageCell, own);
+                uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell, own);
             }
             mScanned = scratch.mTraced.size();
         } else {
@@ -806,20 +884,48 @@ struct ContourIntegrator::Lattice {
             }
             mScanned = scratch.mTraced.size();
         }
-        const Uncovered* far = nullptr;
-        for (const Uncovered& u : cells)
-            if (!far || u.gap > far->gap) far = &u;
-        if (giveUp || !far || far->gap < self.mSettings.coverageGap * epsWorld) return false;
-        const int ia = static_cast<int>(far->a0), ib = static_cast<int>(far->b0);
-        const int h = static_cast<int>(far->size) / 2;
-        const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
-        for (const LatticePoint& q : cand) {
-            if (scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != scratch.mGeneration) {
-                out = q;
-                return true;
+        // A cell of side s is done when every centre of its cells of kCoverageCell units is
+        // near proven ground: its own centre's gap plus the distance to the farthest of them.
+        auto reach = [&](double size) { return kHalfSqrt2 * (size - kCoverageCell) * unit; };
+        const double enough = self.mSettings.coverageGap * epsWorld;
+        for (;;) {
+            size_t far = cells.size();
+            for (size_t i = 0; i < cells.size(); ++i)
+                if (cells[i].exhausted) continue;
+                else if (far == cells.size() || cells[i].gap + reach(cells[i].size) > cells[far].gap + reach(cells[far].size))
+                    far = i;
+            if (giveUp || far == cells.size() || cells[far].gap + reach(cells[far].size) < enough) return false;
+            const Uncovered u = cells[far];
+            if (u.gap < enough && u.size > kCoverageCell) {
+                // Its centre is near proven ground, a farther part of it may not be: look at
+                // its quarters instead (with every disc and band near it).
+                cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
+                gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
+                const double h = 0.5 * u.size;
+                for (int q = 0; q < 4; ++q)
+                    uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h, -1);
+                continue;
             }
+            const int ia = static_cast<int>(u.a0), ib = static_cast<int>(u.b0);
+            const int h = static_cast<int>(u.size) / 2;
+            const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
+            for (const LatticePoint& q : cand) {
+                if (scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != scratch.mGeneration) {
+                    out = q;
+                    return true;
+                }
+            }
+            if (u.size <= kCoverageCell) {
+                // Nothing finer to ask here (it still counts in uncoveredFormFactor()).
+                cells[far].exhausted = true;
+                continue;
+            }
+            // Every candidate traced and still uncovered: its quarters.
+            cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
+            gatherNear(ia, ib, static_cast<int>(u.size));
+            for (int q = 0; q < 4; ++q)
+                uncoveredCells(u.a0 + (q & 1) * 0.5 * u.size, u.b0 + (q >> 1) * 0.5 * u.size, 0.5 * u.size, 0.5 * u.size, -1);
         }
-        return false;  // every candidate traced: nothing finer to ask at this resolution
     }
 
     // Whether a traced coverage sample lies in the square (x0, y0, s), corners excluded, with
@@ -853,6 +959,11 @@ struct ContourIntegrator::Lattice {
             double best;
             const int side = nearestSide(leaf, p, best);
             if (side != answer && best > epsWorld) return true;
+            // On the leaf's own border a vertex that the sample contradicts was placed before
+            // the sample was traced (a neighbour's dichotomy): the next pass narrows it.
+            const bool onBorder = q.a == leaf.x0 || q.a == leaf.x0 + leaf.s || q.b == leaf.y0 ||
+                                  q.b == leaf.y0 + leaf.s;
+            if (onBorder && side != answer && best > 1e-9 * unit && self.mSettings.distanceGuided) return true;
         }
         return false;
     }

@@ -41,16 +41,16 @@ struct GalleryCase {
 // Written 2026-11-27 at commit 9a01025 (whose images equal the commit before's). 40 x 40, two
 // threads.
 const GalleryCase kCases[] = {
-    {"default", "", "1c74748f34ebb39f"},
+    {"default", "", "ace14e118b58169e"},
     {"default", "--aci-mode paper", "51cf2532df25c8c0"},
     {"default", "--aci-mode arcs", "60cb8adf23369065"},
     {"default", "--method mc-solid-angle --samples 64", "ada0047fc61d99f7"},
-    {"table1", "", "2967a0105ba1fbc0"},
+    {"table1", "", "909014c0e2750853"},
     {"table1", "--aci-mode paper", "3a42e2cdc80eed9f"},
-    {"csg", "", "99305a651e3b461c"},
-    {"vdb_tool", "", "1b903dd660be5ea5"},
-    {"bunny", "", "04b07356ce6622d2"},
-    {"fog", "", "25d734903e968c1f"},
+    {"csg", "", "9e5d37ae491e7ad4"},
+    {"vdb_tool", "", "9312ec89751383a5"},
+    {"bunny", "", "4bfdd9bf2febd064"},
+    {"fog", "", "56bc22e6d269ea70"},
 };
 
 }  // namespace
