@@ -1,11 +1,12 @@
 #include "surface_normal.h"
 
 #include <cmath>
-#include <type_traits>
+#include <variant>
 
 #include <openvdb/tools/Interpolation.h>
 
 #include "level_set_impl.h"
+#include "overloaded.h"
 
 namespace penumbra {
 
@@ -63,16 +64,11 @@ Vec3 levelSetNormal(const LevelSet& ls, const Vec3& p) {
 
 Vec3 surfaceNormal(const ObstacleShape& shape, const Vec3& pointWS) {
     return std::visit(
-        [&](const auto& s) -> Vec3 {
-            using T = std::decay_t<decltype(s)>;
-            if constexpr (std::is_same_v<T, AnalyticSphere>) {
-                return sphereNormal(s, pointWS);
-            } else if constexpr (std::is_same_v<T, AnalyticBox>) {
-                return boxNormal(s, pointWS);
-            } else {
-                return s ? levelSetNormal(*s, pointWS) : Vec3(0.0, 0.0, 1.0);
-            }
-        },
+        Overloaded{[&](const AnalyticSphere& s) { return sphereNormal(s, pointWS); },
+                   [&](const AnalyticBox& b) { return boxNormal(b, pointWS); },
+                   [&](const LevelSetPtr& ls) {
+                       return ls ? levelSetNormal(*ls, pointWS) : Vec3(0.0, 0.0, 1.0);
+                   }},
         shape);
 }
 

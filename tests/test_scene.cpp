@@ -1,4 +1,4 @@
-// Tests for the scene loader (scene.h, src/scene_json.cpp): the documented example loads with
+// Tests for the scene loader (scene.h, src/scene_loader.cpp): the documented example loads with
 // the values written in it, defaults apply, and every refused input names the file and the
 // exact JSON pointer of the offending value. The second half ([scenes]) covers sculpted scenes:
 // every primitive, CSG, mesh and transform; shadows of a vdb_tool file, a CSG union and a turned

@@ -1,5 +1,5 @@
 /// @file json_reader.h
-/// The one strict JSON reader, for scene files (scene_json.cpp) and batch manifests (batch.cpp):
+/// The one strict JSON reader, for scene files (scene_loader.cpp) and batch manifests (batch.cpp):
 /// reading a file's text, parsing it with `//` and `/* */` comments allowed and a repeated key
 /// refused, and wording the errors as docs/errors.md shows them (E01, E05, E06):
 ///
