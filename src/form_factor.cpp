@@ -1,6 +1,11 @@
 #include "penumbra/form_factor.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace penumbra {
 
@@ -29,6 +34,247 @@ FTerms fTerms(double s, double d) {
         t.fsOverS = (s * d / q - beta) / (s * s * s);
     }
     return t;
+}
+
+// Gauss-Legendre nodes and weights on [-1, 1] (Newton on the Legendre recurrence).
+template <int K>
+struct GaussLegendre {
+    std::array<double, K> x{}, w{};
+    GaussLegendre() {
+        for (int i = 0; i < K; ++i) {
+            double z = std::cos(kPi * (i + 0.75) / (K + 0.5));
+            double dp = 1.0;
+            for (int it = 0; it < 100; ++it) {
+                double p0 = 1.0, p1 = z;
+                for (int k = 2; k <= K; ++k) {
+                    const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
+                    p0 = p1;
+                    p1 = p2;
+                }
+                dp = K * (z * p1 - p0) / (z * z - 1.0);
+                const double step = p1 / dp;
+                z -= step;
+                if (std::abs(step) < 1e-16) break;
+            }
+            x[i] = z;
+            w[i] = 2.0 / ((1.0 - z * z) * dp * dp);
+        }
+    }
+};
+
+// The unit vectors of a disc light's plane: e1 x e2 = its normal.
+void discAxes(const RectLight& disc, Vec3& e1, Vec3& e2) {
+    e1 = glm::normalize(disc.edgeU);
+    e2 = glm::normalize(disc.edgeV);
+}
+
+double angleOn(const RectLight& disc, const Vec3& e1, const Vec3& e2, const Vec3& p) {
+    const Vec3 d = p - disc.center;
+    return std::atan2(glm::dot(d, e2), glm::dot(d, e1));
+}
+
+}  // namespace
+
+double RectLight::area() const {
+    switch (shape) {
+        case LightShape::Polygon: {
+            Vec3 sum(0.0);
+            for (size_t i = 0; i < vertices.size(); ++i)
+                sum += glm::cross(vertices[i], vertices[(i + 1) % vertices.size()]);
+            return 0.5 * std::abs(glm::dot(sum, normal()));
+        }
+        case LightShape::Disc:
+            return kPi * radius * radius;
+        case LightShape::Rect:
+            break;
+    }
+    return glm::length(glm::cross(edgeU, edgeV));
+}
+
+std::vector<Vec3> RectLight::polygon() const {
+    if (shape == LightShape::Polygon) return vertices;
+    return {corner, corner + edgeU, corner + edgeU + edgeV, corner + edgeV};
+}
+
+bool RectLight::contains(const Vec3& p) const {
+    const double size = std::max(glm::length(edgeU), glm::length(edgeV));
+    const double tol = 1e-9 * size;
+    switch (shape) {
+        case LightShape::Polygon: {
+            const Vec3 n = normal();
+            for (size_t i = 0; i < vertices.size(); ++i) {
+                const Vec3 e = vertices[(i + 1) % vertices.size()] - vertices[i];
+                if (glm::dot(p - vertices[i], glm::normalize(glm::cross(n, e))) < -tol) return false;
+            }
+            return true;
+        }
+        case LightShape::Disc:
+            return glm::length(p - center) <= radius + tol;
+        case LightShape::Rect:
+            break;
+    }
+    const Vec3 d = p - corner;
+    const double u = glm::dot(d, edgeU) / glm::dot(edgeU, edgeU);
+    const double v = glm::dot(d, edgeV) / glm::dot(edgeV, edgeV);
+    return u >= -1e-9 && u <= 1.0 + 1e-9 && v >= -1e-9 && v <= 1.0 + 1e-9;
+}
+
+RectLight polygonLight(const std::vector<Vec3>& vertices) {
+    const size_t n = vertices.size();
+    if (n < 3)
+        throw std::invalid_argument("a polygon light needs at least 3 vertices, got " + std::to_string(n));
+    double size = 0.0;
+    for (const Vec3& v : vertices) size = std::max(size, glm::length(v - vertices[0]));
+    // Newell's normal: the right-hand rule over the whole loop.
+    Vec3 sum(0.0);
+    for (size_t i = 0; i < n; ++i) sum += glm::cross(vertices[i], vertices[(i + 1) % n]);
+    if (!(size > 0.0) || !(glm::length(sum) > 1e-12 * size * size))
+        throw std::invalid_argument("vertex 2 is collinear with the ones before it: the polygon has no area");
+    const Vec3 normal = glm::normalize(sum);
+    for (size_t i = 0; i < n; ++i) {
+        if (std::abs(glm::dot(vertices[i] - vertices[0], normal)) > 1e-6 * size)
+            throw std::invalid_argument("vertex " + std::to_string(i) + " is not on the plane of the others");
+    }
+    for (size_t i = 0; i < n; ++i) {
+        const Vec3& prev = vertices[(i + n - 1) % n];
+        const Vec3& next = vertices[(i + 1) % n];
+        const double turn = glm::dot(glm::cross(vertices[i] - prev, next - vertices[i]), normal);
+        if (!(turn > 1e-9 * size * size))
+            throw std::invalid_argument("vertex " + std::to_string(i) +
+                                        (turn < 0.0 ? " makes the polygon concave"
+                                                    : " repeats or is collinear with its neighbours"));
+    }
+    // A convex polygon has a turn of 2 pi: a star (turning twice) passes the test above.
+    double total = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        const Vec3 a = vertices[i] - vertices[(i + n - 1) % n], b = vertices[(i + 1) % n] - vertices[i];
+        total += std::atan2(glm::dot(glm::cross(a, b), normal), glm::dot(a, b));
+    }
+    if (total > 3.0 * kPi)
+        throw std::invalid_argument("vertex " + std::to_string(n - 1) + " closes a polygon that winds more than once");
+    RectLight l;
+    l.shape = LightShape::Polygon;
+    l.vertices = vertices;
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < n; ++i) {
+        const Vec3 d = glm::normalize(vertices[(i + 1) % n] - vertices[i]);
+        const Vec3 e = glm::cross(normal, d);
+        double d0 = 0.0, d1 = 0.0, e0 = 0.0, e1 = 0.0;
+        for (const Vec3& v : vertices) {
+            const double a = glm::dot(v - vertices[0], d), b = glm::dot(v - vertices[0], e);
+            d0 = std::min(d0, a), d1 = std::max(d1, a), e0 = std::min(e0, b), e1 = std::max(e1, b);
+        }
+        if ((d1 - d0) * (e1 - e0) < best * (1.0 - 1e-12)) {
+            best = (d1 - d0) * (e1 - e0);
+            l.corner = vertices[0] + d0 * d + e0 * e;
+            l.edgeU = (d1 - d0) * d;
+            l.edgeV = (e1 - e0) * e;
+        }
+    }
+    return l;
+}
+
+RectLight discLight(const Vec3& c, const Vec3& normal, double r) {
+    if (!(r > 0.0) || !std::isfinite(r)) throw std::invalid_argument("a disc light's radius must be positive");
+    if (!(glm::length(normal) > 0.0)) throw std::invalid_argument("a disc light's normal must not be zero");
+    const Vec3 n = glm::normalize(normal);
+    // The axis least aligned with n gives the first frame direction.
+    Vec3 axis(1.0, 0.0, 0.0);
+    if (std::abs(n.y) < std::abs(n.x) && std::abs(n.y) <= std::abs(n.z)) axis = Vec3(0.0, 1.0, 0.0);
+    else if (std::abs(n.z) < std::abs(n.x) && std::abs(n.z) < std::abs(n.y)) axis = Vec3(0.0, 0.0, 1.0);
+    const Vec3 e1 = glm::normalize(axis - glm::dot(axis, n) * n);
+    const Vec3 e2 = glm::cross(n, e1);
+    RectLight l;
+    l.shape = LightShape::Disc;
+    l.center = c;
+    l.radius = r;
+    l.corner = c - r * e1 - r * e2;
+    l.edgeU = 2.0 * r * e1;
+    l.edgeV = 2.0 * r * e2;
+    return l;
+}
+
+std::vector<LightEdge> cuttingEdges(const RectLight& light) {
+    std::vector<LightEdge> out;
+    if (light.shape != LightShape::Polygon) return out;
+    const Vec3 n = light.normal();
+    auto uv = [&](const Vec3& p) {
+        const Vec3 d = p - light.corner;
+        return Vec2(glm::dot(d, light.edgeU) / glm::dot(light.edgeU, light.edgeU),
+                    glm::dot(d, light.edgeV) / glm::dot(light.edgeV, light.edgeV));
+    };
+    const size_t k = light.vertices.size();
+    for (size_t i = 0; i < k; ++i) {
+        const Vec3& a = light.vertices[i];
+        const Vec3& b = light.vertices[(i + 1) % k];
+        const Vec2 pa = uv(a), pb = uv(b);
+        auto same = [](double x, double y, double at) { return std::abs(x - at) < 1e-9 && std::abs(y - at) < 1e-9; };
+        if (same(pa.x, pb.x, 0.0) || same(pa.x, pb.x, 1.0) || same(pa.y, pb.y, 0.0) || same(pa.y, pb.y, 1.0))
+            continue;  // on the frame's border: the frame already ends there
+        out.push_back({a, glm::normalize(glm::cross(n, b - a))});
+    }
+    return out;
+}
+
+EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m) {
+    static const GaussLegendre<16> gl;
+    Vec3 e1, e2;
+    discAxes(disc, e1, e2);
+    const double fa = angleOn(disc, e1, e2, a);
+    double span = angleOn(disc, e1, e2, b) - fa;
+    while (span <= 0.0) span += 2.0 * kPi;
+    if (glm::length(b - a) <= 1e-12 * disc.radius) span = 2.0 * kPi;
+    const int pieces = std::max(1, static_cast<int>(std::ceil(span / (kPi / 8.0))));
+    const double h = span / pieces;
+    EdgeDerivative out;
+    for (int p = 0; p < pieces; ++p) {
+        for (int i = 0; i < 16; ++i) {
+            const double phi = fa + h * (p + 0.5 * (gl.x[i] + 1.0));
+            const double c = std::cos(phi), s = std::sin(phi);
+            const Vec3 r = disc.center + disc.radius * (c * e1 + s * e2) - m;
+            const Vec3 dr = disc.radius * (-s * e1 + c * e2);
+            const double q = glm::dot(r, r);
+            const double w = 0.5 * h * gl.w[i];
+            const Vec3 cr = glm::cross(dr, r);
+            out.g += (w / q) * cr;
+            for (int k = 0; k < 3; ++k) {
+                Vec3 e(0.0);
+                e[k] = 1.0;
+                out.dg[k] += w * (-glm::cross(dr, e) / q + (2.0 * r[k] / (q * q)) * cr);
+            }
+        }
+    }
+    return out;
+}
+
+namespace {
+
+// G and its Jacobian of a disc light's part above the receiver's horizon: the arc above it and,
+// when the horizon cuts the disc, the chord between the two cut points.
+GWithDerivative discG(const RectLight& l, const Receiver& r) {
+    GWithDerivative out;
+    Vec3 e1, e2;
+    discAxes(l, e1, e2);
+    const double h0 = glm::dot(l.center - r.point, r.normal);
+    const double a1 = l.radius * glm::dot(e1, r.normal), a2 = l.radius * glm::dot(e2, r.normal);
+    const double amp = std::hypot(a1, a2);
+    auto at = [&](double phi) { return l.center + l.radius * (std::cos(phi) * e1 + std::sin(phi) * e2); };
+    if (h0 <= -amp) return out;
+    if (h0 >= amp) {
+        const EdgeDerivative e = discArcG(l, at(0.0), at(0.0), r.point);
+        out.g = e.g;
+        out.dg = e.dg;
+    } else {
+        const double mid = std::atan2(a2, a1), half = std::acos(-h0 / amp);
+        const Vec3 p0 = at(mid - half), p1 = at(mid + half);
+        const EdgeDerivative arc = discArcG(l, p0, p1, r.point);
+        const EdgeDerivative chord = edgeGWithDerivative(p1 - r.point, p0 - r.point);
+        out.g = arc.g + chord.g;
+        out.dg = arc.dg + chord.dg;
+    }
+    out.g /= 2.0 * kPi;
+    out.dg /= 2.0 * kPi;
+    return out;
 }
 
 }  // namespace
@@ -103,12 +349,14 @@ bool facesLight(const RectLight& light, const Vec3& m) {
 
 double unoccludedFormFactor(const RectLight& light, const Receiver& r) {
     if (!facesLight(light, r.point)) return 0.0;
+    if (light.shape == LightShape::Disc) return std::max(0.0, glm::dot(discG(light, r).g, r.normal));
     return std::max(0.0, polygonFormFactor(clipToHorizon(light.polygon(), r), r));
 }
 
 GWithDerivative unoccludedG(const RectLight& light, const Receiver& r) {
     GWithDerivative out;
     if (!facesLight(light, r.point)) return out;
+    if (light.shape == LightShape::Disc) return discG(light, r);
     const std::vector<Vec3> poly = clipToHorizon(light.polygon(), r);
     const size_t n = poly.size();
     if (n < 3) return out;

@@ -26,22 +26,56 @@ struct Receiver {
     Vec3 normal;
 };
 
-/// A rectangular diffuse light emitting on the side of edgeU x edgeV (right-hand rule).
+/// The shape of a light's emitting surface.
+enum class LightShape { Rect, Polygon, Disc };
+
+/// A diffuse area light: a rectangle, a convex polygon or a disc, emitting on the side of
+/// edgeU x edgeV (right-hand rule).
+///
+/// `corner`, `edgeU`, `edgeV` are the light itself for a rectangle, and for a polygon or a disc
+/// a rectangle of the light's plane that holds it (its *frame*: the estimators' sampling grid,
+/// made by polygonLight() and discLight()); the part of the frame outside the shape emits
+/// nothing.
 struct RectLight {
     std::string name;
+    LightShape shape = LightShape::Rect;
     Vec3 corner{0.0};
     Vec3 edgeU{1.0, 0.0, 0.0};
     Vec3 edgeV{0.0, 1.0, 0.0};
+    std::vector<Vec3> vertices;  ///< polygon: convex, counterclockwise seen from the emitting side
+    Vec3 center{0.0};            ///< disc: its centre (its normal is normal())
+    double radius = 0.0;         ///< disc: its radius
     Rgb radiance{1.0};
 
     Vec3 point(double u, double v) const { return corner + u * edgeU + v * edgeV; }
     Vec3 normal() const { return glm::normalize(glm::cross(edgeU, edgeV)); }
-    double area() const { return glm::length(glm::cross(edgeU, edgeV)); }
-    /// The four corners in the counterclockwise (u, v) order.
-    std::vector<Vec3> polygon() const {
-        return {corner, corner + edgeU, corner + edgeU + edgeV, corner + edgeV};
-    }
+    /// The emitting area.
+    double area() const;
+    /// A rectangle or polygon: its corners, counterclockwise seen from the emitting side (the
+    /// order corner, +edgeU, +edgeU+edgeV, +edgeV for a rectangle). A disc: its frame's four
+    /// corners, a bound (see discBoundaryG() for its exact border).
+    std::vector<Vec3> polygon() const;
+    /// Whether a point of the light's plane lies on the emitting surface (its border included).
+    bool contains(const Vec3& p) const;
 };
+
+/// A convex polygon light; its frame is the smallest rectangle along one of its edges that holds
+/// it. Throws std::invalid_argument naming the offending vertex (by index) when there are fewer
+/// than 3 vertices, they are not on one plane (to 1e-6 of the polygon's size), or the polygon is
+/// not convex and counterclockwise about the normal of its first corner that turns.
+RectLight polygonLight(const std::vector<Vec3>& vertices);
+
+/// A disc light of centre c, emitting along `normal`, radius r > 0; its frame is the square of
+/// side 2r around it.
+RectLight discLight(const Vec3& c, const Vec3& normal, double r);
+
+/// A polygon light's edges that cut its frame (those not lying on the frame's border): each as
+/// a point on it and the unit normal, in the light's plane, pointing into the polygon.
+struct LightEdge {
+    Vec3 origin;
+    Vec3 inward;
+};
+std::vector<LightEdge> cuttingEdges(const RectLight& light);
 
 /// beta n_hat for the directed edge c0 -> c1 (both relative to M), without the 1/(2 pi) factor,
 /// signed so that a counterclockwise loop (see file comment) gives a positive form factor.
@@ -84,6 +118,12 @@ struct GWithDerivative {
     Mat3 dg{0.0};
 };
 GWithDerivative unoccludedG(const RectLight& light, const Receiver& r);
+
+/// G (as edgeG: beta n_hat, without 1 / (2 pi)) of the arc of a disc light's circle from a to b,
+/// both on it, counterclockwise about the light's normal (a full turn when a == b), seen from m,
+/// with its Jacobian in m. Integrated on the exact circle (Gauss-Legendre, 16 nodes per 1/16 of
+/// a turn: converged to rounding for m off the circle), not on a polygon.
+EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m);
 
 /// Form factor of a strip of width `width` around the segment p0-p1 on the light, by the
 /// elementary (differential area) form factor at the segment's midpoint: the uncertainty of a

@@ -1,6 +1,6 @@
 /// @file scene.h
-/// The scene model (src/scene.cpp), its JSON loader (src/scene_loader.cpp) and the building of its obstacles (src/obstacle_build.cpp). The file format is documented in
-/// docs/scene-format.md.
+/// The scene model (src/scene.cpp), its JSON loader (src/scene_loader.cpp) and the building of
+/// its obstacles (src/obstacle_build.cpp). The file format is documented in docs/scene-format.md.
 ///
 /// Units: world space, scene units. Paths inside a scene file are relative to that file.
 /// Errors: loadScene/parseScene throw InputError naming the file and the JSON pointer of the
