@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "penumbra/error.h"
 
@@ -112,7 +113,11 @@ struct Vertex {
     Vec3 i;
     Vec3 plane{0.0};  // tangentContour: unit normal of the grazing plane through M (0 unknown)
     int obstacle = -1;  // tangentContour: the obstacle whose silhouette it is on (-1 unknown)
+    int clip = -1;      // on the border of what emits (kClipHorizon, kClipDisc, or a cut's index)
 };
+
+constexpr int kClipHorizon = 1000;  // Vertex::clip: the receiver's horizon line
+constexpr int kClipDisc = 1001;     // Vertex::clip: a disc light's circle
 
 // Fills what a ray's clearance `c` tells the tangent mode: the angular clearance and, in
 // `g`, the distance gradient, the closest approach's fraction and the obstacle.
@@ -173,6 +178,10 @@ struct ContourIntegrator::Lattice {
     double want;      // coverage: the radius that covers the whole light from any of its points
     double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
     double unit;         // world length of one lattice unit (averaged over the two edges)
+    // What emits: the frame above the horizon, inside a polygon light's cutting edges and a disc
+    // light's circle. Points outside are hidden without a ray (kBelowHorizon).
+    std::vector<LightEdge> cuts;
+    bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
     size_t mScanned = 0;  // coverage: traced rays already in scratch.mUncovered (0: scan anew)
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
@@ -187,6 +196,8 @@ struct ContourIntegrator::Lattice {
           N(grid << (steps + 1)) {
         origin = r.point + s.mSettings.rayOffset * r.normal;
         lightNormal = l.normal();
+        cuts = cuttingEdges(l);
+        shaped = l.shape != LightShape::Rect;
         epsWorld = (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;  // 2 units, averaged
         // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
         // level's square from one of its corners.
@@ -230,7 +241,7 @@ struct ContourIntegrator::Lattice {
         const Vec3 target = pointOf(q);
         float& clear = scratch.mClear[idx];
         clear = std::numeric_limits<float>::quiet_NaN();
-        if (glm::dot(target - rec.point, rec.normal) <= 0.0) {
+        if (!emits(target)) {
             s = kBelowHorizon;
             return s;
         }
@@ -415,9 +426,16 @@ struct ContourIntegrator::Lattice {
         Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
         if (peek(at(hi)) == kBelowHorizon) {
             // On the horizon the contour is the (straight) line where the receiver's tangent
-            // plane cuts the light: its plane through M is that tangent plane.
+            // plane cuts the light: its plane through M is that tangent plane. On a polygon
+            // light's edge or a disc light's circle, the plane through M and the border's
+            // tangent line.
             const Vec3 w = glm::normalize(v.c - origin);
-            const Vec3 np = rec.normal - glm::dot(rec.normal, w) * w;
+            Vec3 np(0.0);
+            if (v.clip == kClipHorizon) {
+                np = rec.normal - glm::dot(rec.normal, w) * w;
+            } else {
+                np = glm::cross(glm::cross(lightNormal, inwardAt(v.clip, v.c)), w);
+            }
             if (glm::length(np) > 1e-9) v.plane = glm::normalize(np);
             v.obstacle = kHorizonContour;
         } else {
@@ -492,8 +510,8 @@ struct ContourIntegrator::Lattice {
         const double height = glm::length(glm::cross(arc.k - a.c, chord)) / len;
         if (height > len) return false;
         const double side = double(s) / N;
-        const double ku = glm::dot(arc.k - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
-        const double kv = glm::dot(arc.k - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+        const Vec2 kuv = light.coordinates(arc.k);
+        const double ku = kuv.x, kv = kuv.y;
         const double u0 = double(x0) / N, v0 = double(y0) / N;
         // K within the square (a quarter side of margin), and never beyond the light's border: an arc bulging out
         // of the light would count area the light does not have.
@@ -510,8 +528,8 @@ struct ContourIntegrator::Lattice {
         // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
         const Vec3 m = 0.5 * (a.c + b.c);
         const Vec3 target = m + 0.75 * (arc.k - m);
-        const double tu = glm::dot(target - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
-        const double tv = glm::dot(target - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+        const Vec2 tuv = light.coordinates(target);
+        const double tu = tuv.x, tv = tuv.y;
         const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * N)), x0, x0 + s),
                              std::clamp(static_cast<int>(std::lround(tv * N)), y0, y0 + s)};
         if (sample(q, false) == kBelowHorizon) return false;
@@ -522,8 +540,8 @@ struct ContourIntegrator::Lattice {
         // unit away, a second ray at the landing point places it again from there.
         {
             const Vec3 land = m + std::clamp(lambda, 0.0, 1.0) * (arc.k - m);
-            const double lu = glm::dot(land - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
-            const double lv = glm::dot(land - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+            const Vec2 luv = light.coordinates(land);
+            const double lu = luv.x, lv = luv.y;
             const LatticePoint q2{std::clamp(static_cast<int>(std::lround(lu * N)), x0, x0 + s),
                                   std::clamp(static_cast<int>(std::lround(lv * N)), y0, y0 + s)};
             if (std::abs(q2.a - q.a) + std::abs(q2.b - q.b) > 1 &&
@@ -674,9 +692,8 @@ struct ContourIntegrator::Lattice {
         const Vec3 pv = pointOf(vis), ph = pointOf(hid);
         Vertex v;
         if (h == kBelowHorizon) {
-            const double hv = glm::dot(pv - rec.point, rec.normal);
-            const double hh = glm::dot(ph - rec.point, rec.normal);
-            v.c = pv + (hv / (hv - hh)) * (ph - pv);
+            const double t = borderCrossing(pv, ph, v.clip);
+            v.c = pv + t * (ph - pv);
             v.i = v.c;
         } else {
             v.c = pv + f * (ph - pv);
@@ -712,6 +729,134 @@ struct ContourIntegrator::Lattice {
     // Height of a light point above the receiver's tangent plane.
     double above(const Vec3& p) const { return glm::dot(p - rec.point, rec.normal); }
 
+    // ----- What emits: the horizon and a polygon or disc light's border -----
+
+    double cutValue(size_t i, const Vec3& p) const { return glm::dot(p - cuts[i].origin, cuts[i].inward); }
+    bool emits(const Vec3& p) const {
+        if (above(p) <= 0.0) return false;
+        for (size_t i = 0; i < cuts.size(); ++i)
+            if (cutValue(i, p) < 0.0) return false;
+        return light.shape != LightShape::Disc || glm::length(p - light.center) <= light.radius;
+    }
+    // The unit normal, in the light's plane, pointing into what emits, of border `clip` at p.
+    Vec3 inwardAt(int clip, const Vec3& p) const {
+        if (clip == kClipHorizon) {
+            const Vec3 m = rec.normal - glm::dot(rec.normal, lightNormal) * lightNormal;
+            return glm::length(m) > 0.0 ? glm::normalize(m) : Vec3(0.0);
+        }
+        if (clip == kClipDisc) return glm::normalize(light.center - p);
+        return cuts[static_cast<size_t>(clip)].inward;
+    }
+    // Where the segment pv -> ph (pv emitting, ph not) leaves what emits, as a fraction of it,
+    // and through which border (`clip`).
+    double borderCrossing(const Vec3& pv, const Vec3& ph, int& clip) const {
+        double best = 1.0;
+        clip = kClipHorizon;
+        auto consider = [&](double fv, double fh, int which) {
+            if (!(fh < 0.0) || !(fv >= 0.0)) return;
+            const double t = fv / (fv - fh);
+            if (t < best) best = t, clip = which;
+        };
+        consider(above(pv), above(ph), kClipHorizon);
+        for (size_t i = 0; i < cuts.size(); ++i) consider(cutValue(i, pv), cutValue(i, ph), static_cast<int>(i));
+        if (light.shape == LightShape::Disc) {
+            // |pv + t d - c|^2 = r^2, the larger root (pv is inside).
+            const Vec3 d = ph - pv, e = pv - light.center;
+            const double a = glm::dot(d, d), b = glm::dot(e, d), c = glm::dot(e, e) - light.radius * light.radius;
+            const double disc = b * b - a * c;
+            if (a > 0.0 && disc >= 0.0) {
+                const double t = (-b + std::sqrt(disc)) / a;
+                if (t >= 0.0 && t < best) best = t, clip = kClipDisc;
+            }
+        }
+        return std::clamp(best, 0.0, 1.0);
+    }
+
+    // The border of what emits from a to b (both on it), counterclockwise about the light's
+    // normal: straight along the horizon and polygon edges, exact arcs along a disc's circle,
+    // turning at their meeting points. False (nothing emitted) when the walk would need the
+    // frame's own border or more turns than a square can hold.
+    bool emitBorder(const Vertex& a, const Vertex& b, bool dryRun, double& length) {
+        Vec3 x = a.c;
+        int on = a.clip;
+        length = 0.0;
+        const double tiny = 1e-9 * unit;
+        for (int turn = 0; turn < 4; ++turn) {
+            if (on == kClipDisc) {
+                // Along the circle: to b, or to the first line it crosses going out.
+                const Vec3 e1 = glm::normalize(light.edgeU), e2 = glm::normalize(light.edgeV);
+                auto angle = [&](const Vec3& p) {
+                    const Vec3 d = p - light.center;
+                    return std::atan2(glm::dot(d, e2), glm::dot(d, e1));
+                };
+                auto ahead = [&](double phi) {
+                    double d = phi - angle(x);
+                    while (d <= 1e-12) d += 2.0 * kPi;
+                    return d;
+                };
+                double best = b.clip == kClipDisc ? ahead(angle(b.c)) : std::numeric_limits<double>::infinity();
+                int next = kClipDisc;
+                auto line = [&](double f0, const Vec3& m, int which) {
+                    // f(phi) = f0 + r (cos phi m.e1 + sin phi m.e2); leaving where it falls through 0.
+                    const double a1 = light.radius * glm::dot(m, e1), a2 = light.radius * glm::dot(m, e2);
+                    const double amp = std::hypot(a1, a2);
+                    if (!(amp > std::abs(f0))) return;
+                    const double mid = std::atan2(a2, a1), half = std::acos(-f0 / amp);
+                    const double d = ahead(mid + half);  // f decreasing through 0 there
+                    if (d < best) best = d, next = which;
+                };
+                line(above(light.center), inwardAt(kClipHorizon, x), kClipHorizon);
+                for (size_t i = 0; i < cuts.size(); ++i) line(cutValue(i, light.center), cuts[i].inward, static_cast<int>(i));
+                if (!std::isfinite(best)) return false;
+                const double phi = angle(x) + best;
+                const Vec3 y = next == kClipDisc ? b.c : light.center + light.radius * (std::cos(phi) * e1 + std::sin(phi) * e2);
+                length += light.radius * best;
+                if (!dryRun) {
+                    const EdgeDerivative e = discArcG(light, x, y, rec.point);
+                    g += e.g;
+                    if (self.mSettings.gradient) dg += e.dg;
+                }
+                if (next == kClipDisc) return true;
+                x = y, on = next;
+                continue;
+            }
+            // Along a line: its direction keeps what emits on the left.
+            const Vec3 m = inwardAt(on, x);
+            const Vec3 d = glm::cross(m, lightNormal);
+            double best = std::numeric_limits<double>::infinity();
+            int next = -1;
+            if (b.clip == on) {
+                const double s = glm::dot(b.c - x, d);
+                if (s >= -tiny) best = std::max(s, 0.0), next = on;
+            }
+            auto line = [&](double f, const Vec3& mj, int which) {
+                const double rate = glm::dot(mj, d);
+                if (!(rate < 0.0) || which == on) return;
+                const double s = f / -rate;
+                if (s > tiny && s < best) best = s, next = which;
+            };
+            line(above(x), inwardAt(kClipHorizon, x), kClipHorizon);
+            for (size_t i = 0; i < cuts.size(); ++i) line(cutValue(i, x), cuts[i].inward, static_cast<int>(i));
+            if (light.shape == LightShape::Disc && on != kClipDisc) {
+                const Vec3 e = x - light.center;
+                const double bb = glm::dot(e, d), c = glm::dot(e, e) - light.radius * light.radius;
+                const double disc = bb * bb - c;
+                if (disc >= 0.0) {
+                    const double s = -bb + std::sqrt(disc);
+                    if (s > tiny && s < best) best = s, next = kClipDisc;
+                }
+            }
+            if (next < 0 && b.clip != on) return false;
+            if (!std::isfinite(best)) return false;
+            const Vec3 y = next == on ? b.c : x + best * d;
+            length += best;
+            if (!dryRun) emit(x, y);
+            if (next == on) return true;
+            x = y, on = next;
+        }
+        return false;
+    }
+
     // Whether the part of the cell (lattice coordinates a0, b0, side `size`) above the horizon
     // lies in one of the gathered discs; with `own` >= 0, a disc's radius that excludes that
     // obstacle counts (Certificate::radiusOthers).
@@ -741,6 +886,28 @@ struct ContourIntegrator::Lattice {
         return false;
     }
 
+    // Whether the cell lies wholly outside a polygon light's cutting edges or a disc's circle.
+    bool cellOutside(double a0, double b0, double size) const {
+        const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
+                           light.point((a0 + size) / N, (b0 + size) / N),
+                           light.point(a0 / N, (b0 + size) / N)};
+        for (size_t i = 0; i < cuts.size(); ++i) {
+            bool all = true;
+            for (const Vec3& p : q) all = all && cutValue(i, p) < 0.0;
+            if (all) return true;
+        }
+        if (light.shape != LightShape::Disc) return false;
+        // The circle's centre's distance to the cell (zero inside it).
+        double inside = 1.0, nearest = std::numeric_limits<double>::infinity();
+        for (int i = 0; i < 4; ++i) {
+            const Vec3 e = q[(i + 1) & 3] - q[i];
+            const double t = std::clamp(glm::dot(light.center - q[i], e) / glm::dot(e, e), 0.0, 1.0);
+            nearest = std::min(nearest, glm::length(q[i] + t * e - light.center));
+            inside = std::min(inside, glm::dot(glm::cross(e, light.center - q[i]), lightNormal));
+        }
+        return inside < 0.0 && nearest > light.radius;
+    }
+
     // Distance from a light point to a contour segment.
     static double distanceToSegment(const Vec3& p, const Segment& g) {
         const Vec3 d = g.b - g.a;
@@ -763,6 +930,7 @@ struct ContourIntegrator::Lattice {
     // `leafOwn` >= 0: the cell lies in a contour square whose pieces all belong to that
     // obstacle (the square is within its own contour's band).
     void uncoveredCells(double a0, double b0, double size, double minSize, int leafOwn) const {
+        if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
         if (cellInDisc(a0, b0, size, -1)) return;
         (void)leafOwn;
         const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
@@ -778,7 +946,7 @@ struct ContourIntegrator::Lattice {
                 uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, leafOwn);
             return;
         }
-        if (above(c) <= 0.0) return;
+        if (!emits(c)) return;
         if (minSize <= 1.0) {
             // The final count: a cell within epsilon of a located contour piece belongs to the
             // piece's strip (its own term of the bound), not to what coverage left open.
@@ -1122,6 +1290,19 @@ struct ContourIntegrator::Lattice {
             pieces[nPieces++] = pc;
         }
 
+        // A piece between two points of a polygon or disc light's border (or the horizon) is
+        // that border: exact, no check, when it stays near the square.
+        bool border[2] = {false, false};
+        if (shaped) {
+            for (int q = 0; q < nPieces; ++q) {
+                const Vertex& a = x[pieces[q].exitSide];
+                const Vertex& b = x[pieces[q].entrySide];
+                double length = 0.0;
+                border[q] = a.clip >= 0 && b.clip >= 0 && emitBorder(a, b, true, length) &&
+                            length <= 4.0 * s * unit;
+            }
+        }
+
         // Section 3.2: one more contour point per piece; refine where the change exceeds the
         // form factor of a strip of width epsilon around the piece.
         Vertex z[2];
@@ -1129,6 +1310,7 @@ struct ContourIntegrator::Lattice {
         bool arcOk[2] = {false, false};
         if (self.mSettings.tangentContour && self.mSettings.distanceGuided) {
             for (int q = 0; q < nPieces; ++q) {
+                if (border[q]) continue;
                 const Vertex& a = x[pieces[q].exitSide];
                 const Vertex& b = x[pieces[q].entrySide];
                 const double pieceThr =
@@ -1142,7 +1324,7 @@ struct ContourIntegrator::Lattice {
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
-            if (arcOk[q]) continue;
+            if (arcOk[q] || border[q]) continue;
             if (pieces[q].midline && (!visible(pieces[q].checkVis) || visible(pieces[q].checkHid))) {
                 // A side's middle disagrees with its corners: the contour crosses that side
                 // twice, which only a split square can represent.
@@ -1204,6 +1386,7 @@ struct ContourIntegrator::Lattice {
             // without a shoulder ray, a quarter with one), for a checked piece half the change
             // that the check measured.
             for (int q = 0; q < nPieces; ++q) {
+                if (border[q]) continue;  // exact
                 const Vertex& a = x[pieces[q].exitSide];
                 const Vertex& b = x[pieces[q].entrySide];
                 double e = 0.25 * stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
@@ -1220,7 +1403,10 @@ struct ContourIntegrator::Lattice {
         for (int q = 0; q < nPieces; ++q) {
             const Vertex& a = x[pieces[q].exitSide];
             const Vertex& b = x[pieces[q].entrySide];
-            if (arcOk[q]) {
+            if (border[q]) {
+                double length = 0.0;
+                emitBorder(a, b, false, length);
+            } else if (arcOk[q]) {
                 emitArc(a, b, arcs[q]);
             } else if (self.mSettings.curvedContour) {
                 // Treat X, Z, Y as points of a parabolic arc: the area between the arc and its
@@ -1265,12 +1451,20 @@ struct ContourIntegrator::Lattice {
         for (const Vec3& q : light.polygon())
             if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
         const bool vis = visible(centre, true);
+        if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
         const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
         for (const Vec3& q : light.polygon())
             if (!(glm::length(q - pc) < cert.radius)) return false;
         if (vis) {
-            const std::vector<Vec3> poly = light.polygon();
-            for (int i = 0; i < 4; ++i) emit(poly[i], poly[(i + 1) & 3]);
+            if (light.shape == LightShape::Disc) {
+                const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
+                const EdgeDerivative e = discArcG(light, start, start, rec.point);
+                g += e.g;
+                if (self.mSettings.gradient) dg += e.dg;
+            } else {
+                const std::vector<Vec3> poly = light.polygon();
+                for (size_t i = 0; i < poly.size(); ++i) emit(poly[i], poly[(i + 1) % poly.size()]);
+            }
         }
         return true;
     }
@@ -1314,6 +1508,45 @@ void ContourIntegrator::forgetCorners() { mScratch->mCorners.clear(); }
 
 Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                                      Occluder::Query& query) {
+    if (light.shape == LightShape::Polygon) {
+        // Emitting area between lattice corners that all lie outside it would go unseen: a
+        // polygon whose corners are not its frame's, or a triangle whose corners the horizon
+        // cuts off, is integrated as the fan of triangles of its part above the horizon, each
+        // in its own parallelogram (a parallelogram needs none: the horizon meets it on its
+        // frame's border, like a rectangle's).
+        const bool parallelogram = light.vertices.size() == 4 && frameHoldsCorners(light);
+        const std::vector<Vec3> part = parallelogram || mFanPiece ? light.vertices : clipToHorizon(light.vertices, r);
+        if (!parallelogram && !mFanPiece && !(part == light.vertices && frameHoldsCorners(light))) {
+            mFanPiece = true;  // each triangle is integrated as it is (no second clip)
+            Estimate sum;
+            sum.errorBound = mSettings.coverage && mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
+            for (size_t i = 1; i + 1 < part.size(); ++i) {
+                RectLight t;
+                try {
+                    t = polygonLight({part[0], part[i], part[i + 1]});
+                } catch (const std::invalid_argument&) {
+                    continue;  // a sliver of no area where the horizon meets a corner
+                }
+                t.radiance = light.radiance;
+                Estimate e;
+                try {
+                    e = evaluate(r, t, query);
+                } catch (...) {
+                    mFanPiece = false;
+                    throw;
+                }
+                sum.formFactor += e.formFactor;
+                sum.g += e.g;
+                sum.dg += e.dg;
+                sum.gradient += e.gradient;
+                sum.errorBound += e.errorBound;
+                sum.counts.merge(e.counts);
+                sum.pattern.insert(sum.pattern.end(), e.pattern.begin(), e.pattern.end());
+            }
+            mFanPiece = false;
+            return sum;
+        }
+    }
     Scratch& sc = *mScratch;
     Estimate est;
     if (!facesLight(light, r.point)) return est;

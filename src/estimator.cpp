@@ -96,8 +96,8 @@ Footprint footprintOf(const Box3& media, const Vec3& origin, const RectLight& li
         // A corner level with or behind the origin (seen from the light): no bounded projection.
         if (!(along * toLight > 1e-12 * std::abs(toLight) * std::abs(toLight))) return f;
         const Vec3 p = origin + (toLight / along) * (b - origin);
-        const double u = glm::dot(p - light.corner, light.edgeU) / glm::dot(light.edgeU, light.edgeU);
-        const double v = glm::dot(p - light.corner, light.edgeV) / glm::dot(light.edgeV, light.edgeV);
+        const Vec2 uv = light.coordinates(p);
+        const double u = uv.x, v = uv.y;
         u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
     }
     const double pad = 0.01;

@@ -75,6 +75,15 @@ double angleOn(const RectLight& disc, const Vec3& e1, const Vec3& e2, const Vec3
 
 }  // namespace
 
+Vec2 RectLight::coordinates(const Vec3& p) const {
+    const Vec3 d = p - corner;
+    const double a = glm::dot(edgeU, edgeU), b = glm::dot(edgeU, edgeV), c = glm::dot(edgeV, edgeV);
+    const double pu = glm::dot(d, edgeU), pv = glm::dot(d, edgeV);
+    if (b == 0.0) return Vec2(pu / a, pv / c);  // a rectangle
+    const double det = a * c - b * b;
+    return Vec2((c * pu - b * pv) / det, (a * pv - b * pu) / det);
+}
+
 double RectLight::area() const {
     switch (shape) {
         case LightShape::Polygon: {
@@ -113,9 +122,8 @@ bool RectLight::contains(const Vec3& p) const {
         case LightShape::Rect:
             break;
     }
-    const Vec3 d = p - corner;
-    const double u = glm::dot(d, edgeU) / glm::dot(edgeU, edgeU);
-    const double v = glm::dot(d, edgeV) / glm::dot(edgeV, edgeV);
+    const Vec2 uv = coordinates(p);
+    const double u = uv.x, v = uv.y;
     return u >= -1e-9 && u <= 1.0 + 1e-9 && v >= -1e-9 && v <= 1.0 + 1e-9;
 }
 
@@ -155,6 +163,15 @@ RectLight polygonLight(const std::vector<Vec3>& vertices) {
     RectLight l;
     l.shape = LightShape::Polygon;
     l.vertices = vertices;
+    // A triangle's frame is the parallelogram on its first two edges (the triangle is the
+    // half of it below the diagonal), a parallelogram's is itself: their corners are the
+    // frame's, which the contour integrator's first level samples.
+    if (n == 3 || (n == 4 && glm::length(vertices[0] + vertices[2] - vertices[1] - vertices[3]) <= 1e-9 * size)) {
+        l.corner = vertices[0];
+        l.edgeU = vertices[1] - vertices[0];
+        l.edgeV = vertices[n - 1] - vertices[0];
+        return l;
+    }
     double best = std::numeric_limits<double>::infinity();
     for (size_t i = 0; i < n; ++i) {
         const Vec3 d = glm::normalize(vertices[(i + 1) % n] - vertices[i]);
@@ -198,11 +215,7 @@ std::vector<LightEdge> cuttingEdges(const RectLight& light) {
     std::vector<LightEdge> out;
     if (light.shape != LightShape::Polygon) return out;
     const Vec3 n = light.normal();
-    auto uv = [&](const Vec3& p) {
-        const Vec3 d = p - light.corner;
-        return Vec2(glm::dot(d, light.edgeU) / glm::dot(light.edgeU, light.edgeU),
-                    glm::dot(d, light.edgeV) / glm::dot(light.edgeV, light.edgeV));
-    };
+    auto uv = [&](const Vec3& p) { return light.coordinates(p); };
     const size_t k = light.vertices.size();
     for (size_t i = 0; i < k; ++i) {
         const Vec3& a = light.vertices[i];
@@ -214,6 +227,14 @@ std::vector<LightEdge> cuttingEdges(const RectLight& light) {
         out.push_back({a, glm::normalize(glm::cross(n, b - a))});
     }
     return out;
+}
+
+bool frameHoldsCorners(const RectLight& light) {
+    if (light.shape != LightShape::Polygon) return true;
+    const size_t n = light.vertices.size();
+    return (n == 3 || n == 4) && light.corner == light.vertices[0] &&
+           light.edgeU == light.vertices[1] - light.vertices[0] &&
+           light.edgeV == light.vertices[n - 1] - light.vertices[0];
 }
 
 EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m) {

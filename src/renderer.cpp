@@ -809,7 +809,7 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         // The spherical-rectangle parametrization needs a rectangle, not a parallelogram.
         for (size_t i = 0; i < scene.lights.size(); ++i) {
             const RectLight& l = scene.lights[i];
-            if (std::abs(glm::dot(l.edgeU, l.edgeV)) >
+            if (l.shape == LightShape::Rect && std::abs(glm::dot(l.edgeU, l.edgeV)) >
                 1e-9 * glm::length(l.edgeU) * glm::length(l.edgeV)) {
                 throw InputError(scene.file, "/lights/" + std::to_string(i),
                                  std::string(methodName(settingsIn.method)) +

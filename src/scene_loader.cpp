@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -320,23 +321,51 @@ Camera parseCamera(const Node& node) {
 }
 
 RectLight parseLight(const Node& node, size_t index) {
-    const Object obj(node, {"name", "type", "corner", "edge_u", "edge_v", "radiance"});
-    obj.kind("light", {"rect"}, "rect");
+    const std::string type =
+        Object(node, {"name", "type", "corner", "edge_u", "edge_v", "vertices", "center", "normal",
+                      "radius", "radiance"})
+            .kind("light", {"rect", "polygon", "disc"}, "rect");
+    std::vector<std::string> keys = {"name", "type", "radiance"};
+    if (type == "rect") keys.insert(keys.end(), {"corner", "edge_u", "edge_v"});
+    if (type == "polygon") keys.push_back("vertices");
+    if (type == "disc") keys.insert(keys.end(), {"center", "normal", "radius"});
+    const Object obj(node, keys);
     RectLight light;
+    if (type == "polygon") {
+        const Node list = obj.at("vertices");
+        list.array();
+        std::vector<Vec3> vertices;
+        for (size_t i = 0; i < list.json().size(); ++i) vertices.push_back(list.element(i).vec3());
+        try {
+            light = polygonLight(vertices);
+        } catch (const std::invalid_argument& e) {
+            // "vertex N ...": the error belongs to that vertex.
+            const std::string what = e.what();
+            size_t vertex = 0;
+            if (std::sscanf(what.c_str(), "vertex %zu", &vertex) == 1 && vertex < vertices.size())
+                list.element(vertex).fail(what);
+            list.fail(what);
+        }
+    } else if (type == "disc") {
+        const Vec3 normal = obj.at("normal").vec3();
+        if (!(glm::length(normal) > 0.0)) obj.at("normal").fail("the normal must not be zero");
+        light = discLight(obj.at("center").vec3(), normal, obj.at("radius").numberAbove(0.0));
+    } else {
+        light.corner = obj.at("corner").vec3();
+        light.edgeU = obj.at("edge_u").vec3();
+        light.edgeV = obj.at("edge_v").vec3();
+        // The emitting normal is edge_u x edge_v: parallel or zero edges leave it undefined.
+        const double area = glm::length(glm::cross(light.edgeU, light.edgeV));
+        const double lenProduct = glm::length(light.edgeU) * glm::length(light.edgeV);
+        if (!(area > kMinEdgeSine * lenProduct) || !(area > 0.0) || !std::isfinite(area)) {
+            obj.node().fail("degenerate rectangle: edge_u " + vecText(light.edgeU) + " and edge_v " +
+                            vecText(light.edgeV) + " are parallel or zero (area " + numberText(area) +
+                            ")");
+        }
+    }
     light.name =
         obj.has("name") ? obj.at("name").nonEmptyString() : "light_" + std::to_string(index);
-    light.corner = obj.at("corner").vec3();
-    light.edgeU = obj.at("edge_u").vec3();
-    light.edgeV = obj.at("edge_v").vec3();
     light.radiance = obj.rgb("radiance", Rgb(1.0));
-    // The emitting normal is edge_u x edge_v: parallel or zero edges leave it undefined.
-    const double area = glm::length(glm::cross(light.edgeU, light.edgeV));
-    const double lenProduct = glm::length(light.edgeU) * glm::length(light.edgeV);
-    if (!(area > kMinEdgeSine * lenProduct) || !(area > 0.0) || !std::isfinite(area)) {
-        obj.node().fail("degenerate rectangle: edge_u " + vecText(light.edgeU) + " and edge_v " +
-                        vecText(light.edgeV) + " are parallel or zero (area " + numberText(area) +
-                        ")");
-    }
     return light;
 }
 
@@ -806,6 +835,14 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     if (top.has("obstacles")) plans = parseObstacles(top.at("obstacles"), scene.levelSet);
 
     buildPlans(plans, budget, ctx.file, ctx.cache, scene);
+    if (!scene.volumes.empty()) {
+        for (size_t i = 0; i < scene.lights.size(); ++i) {
+            if (scene.lights[i].shape != LightShape::Rect)
+                throw InputError(ctx.file, "/lights/" + std::to_string(i) + "/type",
+                                 "polygon and disc lights do not light volumes yet (the scene has a "
+                                 "fog or density obstacle): use a \"rect\" light");
+        }
+    }
     scene.inputFiles = ctx.inputs;
     return scene;
 }

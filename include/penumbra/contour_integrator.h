@@ -61,6 +61,7 @@ private:
     struct Scratch;  // the sample lattice, coverage state and kept corners (contour_integrator.cpp)
     AciSettings mSettings;
     std::unique_ptr<Scratch> mScratch;
+    bool mFanPiece = false;  // evaluating one triangle of a polygon light's fan (no second clip)
 };
 
 /// One-shot convenience: a fresh ContourIntegrator per call.

@@ -48,6 +48,9 @@ struct RectLight {
     Rgb radiance{1.0};
 
     Vec3 point(double u, double v) const { return corner + u * edgeU + v * edgeV; }
+    /// The frame coordinates (u, v) of a point of the light's plane: point(u, v) == p (for a
+    /// parallelogram frame too).
+    Vec2 coordinates(const Vec3& p) const;
     Vec3 normal() const { return glm::normalize(glm::cross(edgeU, edgeV)); }
     /// The emitting area.
     double area() const;
@@ -59,8 +62,10 @@ struct RectLight {
     bool contains(const Vec3& p) const;
 };
 
-/// A convex polygon light; its frame is the smallest rectangle along one of its edges that holds
-/// it. Throws std::invalid_argument naming the offending vertex (by index) when there are fewer
+/// A convex polygon light. Its frame: for a triangle, the parallelogram on its first two edges;
+/// for a parallelogram, itself; otherwise the smallest rectangle along one of its edges that
+/// holds it (the contour integrator then integrates the fan of triangles from vertex 0, each in
+/// its own parallelogram). Throws std::invalid_argument naming the offending vertex (by index) when there are fewer
 /// than 3 vertices, they are not on one plane (to 1e-6 of the polygon's size), or the polygon is
 /// not convex and counterclockwise about the normal of its first corner that turns.
 RectLight polygonLight(const std::vector<Vec3>& vertices);
@@ -76,6 +81,10 @@ struct LightEdge {
     Vec3 inward;
 };
 std::vector<LightEdge> cuttingEdges(const RectLight& light);
+
+/// Whether a polygon light's frame has the polygon's corners among its own (a triangle or a
+/// parallelogram, see polygonLight()); false for other polygons, true for rectangles and discs.
+bool frameHoldsCorners(const RectLight& light);
 
 /// beta n_hat for the directed edge c0 -> c1 (both relative to M), without the 1/(2 pi) factor,
 /// signed so that a counterclockwise loop (see file comment) gives a positive form factor.
