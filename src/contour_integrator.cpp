@@ -242,6 +242,9 @@ struct ContourIntegrator::Lattice {
         float& clear = scratch.mClear[idx];
         clear = std::numeric_limits<float>::quiet_NaN();
         if (!emits(target)) {
+            // No ray: nothing of an earlier evaluation's ray here may be read as this one's.
+            if (idx < scratch.mGeometry.size()) scratch.mGeometry[idx] = RayGeometry{};
+            if (idx < scratch.mCert.size()) scratch.mCert[idx] = Certificate{};
             s = kBelowHorizon;
             return s;
         }

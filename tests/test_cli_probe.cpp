@@ -230,3 +230,51 @@ TEST_CASE("probe --aci-mode picks the estimator's variant; an unknown mode is re
     CHECK(err.find("bogus") != std::string::npos);
     CHECK(std::count(err.begin(), err.end(), '\n') == 1);
 }
+
+TEST_CASE("probe --light all adds the lights; --columns per-light shows each", "[cli][probe][lights]") {
+    const fs::path dir = makeTempDir("all");
+    std::ofstream(dir / "scene.json") << R"({
+      "lights": [{"name": "key", "corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0]},
+                 {"name": "hex", "type": "polygon", "radiance": [0.2, 0.3, 1],
+                  "vertices": [[2,0,3],[1,-0.8,3],[0,0,3],[0.5,0.9,3],[1.5,0.9,3]]},
+                 {"name": "round", "type": "disc", "center": [-1.5,0.5,3], "normal": [0,0,-1],
+                  "radius": 0.5}],
+      "obstacles": [{"type": "sphere", "center": [0.3,0.2,2.0], "radius": 0.7, "analytic": true}]
+    })";
+    const std::string input = "x,y,z,nx,ny,nz\n-2.0,0.3,0,0,0,1\n1.2,0.43,0,0,0,2\n0.6,0.4,0,0.3,0,1\n";
+    const std::string scene = (dir / "scene.json").string();
+    std::vector<std::vector<std::array<double, 8>>> single;
+    for (const char* name : {"key", "hex", "round"}) {
+        const Run run = probe(scene + " --light " + name, input, dir);
+        REQUIRE(run.exitCode == 0);
+        single.push_back(readRows(run.out));
+    }
+    const Run all = probe(scene + " --light all", input, dir);
+    REQUIRE(all.exitCode == 0);
+    const std::vector<std::array<double, 8>> sum = readRows(all.out);
+    REQUIRE(sum.size() == 3);
+    for (size_t k = 0; k < sum.size(); ++k) {
+        // The CSV carries 12 significant digits: the sum matches to that.
+        CHECK(sum[k][3] == Approx(single[0][k][3] + single[1][k][3] + single[2][k][3]).epsilon(1e-10));
+        CHECK(sum[k][4] == Approx(single[0][k][4] + single[1][k][4] + single[2][k][4]).epsilon(1e-9).margin(1e-12));
+        CHECK(sum[k][7] == single[0][k][7] + single[1][k][7] + single[2][k][7]);
+    }
+    const Run columns = probe(scene + " --light all --columns per-light", input, dir);
+    REQUIRE(columns.exitCode == 0);
+    std::istringstream lines(columns.out);
+    std::string line;
+    std::getline(lines, line);
+    CHECK(line == "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays,form_factor:key,"
+                  "form_factor:hex,form_factor:round");
+    for (size_t k = 0; k < 3; ++k) {
+        REQUIRE(std::getline(lines, line));
+        std::vector<double> v;
+        std::istringstream cells(line);
+        for (std::string cell; std::getline(cells, cell, ',');) v.push_back(std::stod(cell));
+        REQUIRE(v.size() == 11);
+        for (size_t l = 0; l < 3; ++l) CHECK(v[8 + l] == Approx(single[l][k][3]).epsilon(1e-10));
+    }
+    const Run bad = probe(scene + " --light key --columns per-light", input, dir);
+    CHECK(bad.exitCode == 2);
+    CHECK(bad.out.empty());
+}

@@ -1,6 +1,7 @@
 // `penumbra probe`: point queries in the manner of Radiance's `rtrace -I`. Reads sensor points
 // as CSV on stdin (header x,y,z,nx,ny,nz) and writes, in the same order, the form factor to one
-// light, its gradient with respect to the sensor position (normal fixed) and the shadow rays
+// light (or the sum over every light, `--light all`, with a column per light under
+// `--columns per-light`), its gradient with respect to the sensor position (normal fixed) and the shadow rays
 // spent, as CSV on stdout. `--method` picks the estimator: aci (approximate contour
 // integration) or one of the Monte Carlo baselines of monte_carlo.h, which estimate no
 // gradient (their dF columns are 0).
@@ -28,6 +29,7 @@ namespace {
 struct ProbeOptions {
     std::string scene;
     std::string light;
+    std::string columns = "default";
     bool errorBound = false;
     std::unique_ptr<SettingsFlags> settings;  // method, ACI and Monte Carlo settings
 };
@@ -65,6 +67,14 @@ double parseNumber(const std::string& cell, size_t lineNo, const char* column) {
                      "expected a finite number, got '" + cell + "'");
 }
 
+// A CSV header field, quoted when it holds a comma, a quote or a line break.
+std::string csvField(const std::string& s) {
+    if (s.find_first_of(",\"\r\n") == std::string::npos) return s;
+    std::string q = "\"";
+    for (char c : s) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return q + "\"";
+}
+
 int runProbe(const ProbeOptions& opt) {
     // The settings as render's and a manifest's (render_settings.h): the same names, ranges
     // and checks; only aci-pixel, a renderer's pipeline, has no meaning for points.
@@ -75,8 +85,16 @@ int runProbe(const ProbeOptions& opt) {
                          "mc-ratio, got 'aci-pixel'");
     const Method method = rs.method;
     const Scene scene = loadScene(opt.scene);
-    const size_t lightIndex = scene.lightIndex(opt.light);
-    const RectLight& light = scene.lights[lightIndex];
+    // The lights to add up: the one named, or every light with `--light all`.
+    std::vector<size_t> lightIndices;
+    if (opt.light == "all") {
+        for (size_t i = 0; i < scene.lights.size(); ++i) lightIndices.push_back(i);
+    } else {
+        lightIndices.push_back(scene.lightIndex(opt.light));
+    }
+    const bool perLight = opt.columns == "per-light";
+    if (perLight && opt.light != "all")
+        throw InputError("", "--columns", "per-light columns need --light all");
     const Occluder occluder = scene.makeOccluder();
     Occluder::Query query = occluder.makeQuery();
     AciSettings settings = rs.aci;
@@ -123,20 +141,35 @@ int runProbe(const ProbeOptions& opt) {
 
     std::ostringstream out;
     out << std::setprecision(12);
-    out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays" << (opt.errorBound ? ",error_bound" : "")
-        << '\n';
+    out << "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays" << (opt.errorBound ? ",error_bound" : "");
+    if (perLight)
+        for (size_t li : lightIndices) out << ',' << csvField("form_factor:" + scene.lights[li].name);
+    out << '\n';
+    std::vector<double> each(lightIndices.size());
     for (size_t i = 0; i < points.size(); ++i) {
         const Receiver& r = points[i];
-        // Seeded by the point's position in the input, so a run does not depend on anything else.
-        mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), rs.mc.seed);
         mc.rayOffset = settings.rayOffset = receiverRayOffset(occluder, r.point, 1e-9);
         integrator.setSettings(settings);
-        const Estimate e = estimate(method, r, light, query, integrator, mc);
-        out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << e.formFactor << ','
-            << e.gradient.x << ',' << e.gradient.y << ',' << e.gradient.z << ','
-            << e.counts.shadowRays();
+        double f = 0.0, bound = 0.0;
+        Vec3 gradient(0.0);
+        uint64_t rays = 0;
+        for (size_t k = 0; k < lightIndices.size(); ++k) {
+            // Seeded by the point's position in the input and the light, so a run does not
+            // depend on anything else.
+            mc.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndices[k]), rs.mc.seed);
+            const Estimate e = estimate(method, r, scene.lights[lightIndices[k]], query, integrator, mc);
+            each[k] = e.formFactor;
+            f += e.formFactor;
+            gradient += e.gradient;
+            bound += e.errorBound;
+            rays += e.counts.shadowRays();
+        }
+        out << r.point.x << ',' << r.point.y << ',' << r.point.z << ',' << f << ',' << gradient.x
+            << ',' << gradient.y << ',' << gradient.z << ',' << rays;
         // The estimator's bound on |F - F_exact| (tangent mode); nan where it gives none.
-        if (opt.errorBound) out << ',' << e.errorBound;
+        if (opt.errorBound) out << ',' << bound;
+        if (perLight)
+            for (double x : each) out << ',' << x;
         out << '\n';
     }
     std::cout << out.str() << std::flush;
@@ -152,7 +185,13 @@ Runner addProbeCommand(CLI::App& app) {
         "Form factor and its gradient at sensor points: CSV x,y,z,nx,ny,nz on stdin, CSV "
         "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays on stdout");
     sub->add_option("scene", opt->scene, "Scene file (JSON)")->required();
-    sub->add_option("--light", opt->light, "Name of the light (default: the only light)");
+    sub->add_option("--light", opt->light,
+                    "Name of the light (default: the only light), or 'all': the sum over every "
+                    "light of the form factor, its gradient, rays and error bound");
+    sub->add_option("--columns", opt->columns,
+                    "default, or per-light (with --light all): one more column per light, "
+                    "form_factor:NAME, in the scene's order")
+        ->check(CLI::IsMember({"default", "per-light"}));
     sub->add_flag("--error-bound", opt->errorBound,
                   "Append a column error_bound: the estimator's bound on |F - F_exact| (the "
                   "default tangent mode's certified coverage; nan for the paper and arcs modes "
