@@ -331,8 +331,14 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
         lightName = py::str(lightIn);
     }
     const Scene& scene = self.scene();
-    const size_t lightIndex = scene.lightIndex(lightName);
-    const RectLight& light = scene.lights[lightIndex];
+    // The lights to add up: the one named, or every light with "all" (as the CLI's --light all).
+    std::vector<size_t> lightIndices;
+    if (lightName == "all") {
+        for (size_t i = 0; i < scene.lights.size(); ++i) lightIndices.push_back(i);
+    } else {
+        lightIndices.push_back(scene.lightIndex(lightName));
+    }
+    const size_t nLights = lightIndices.size();
     const Occluder& occluder = self.occluder();
     // Sensor points may sit on an obstacle's surface: rays start 1.5 voxels off a level set's
     // surface, a hair off anything else (receiverRayOffset, per point), as in the CLI.
@@ -349,6 +355,9 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
     double* grad = gradient.mutable_data();
     int64_t* rays = shadowRays.mutable_data();
     double* bound = errorBound.mutable_data();
+    // light="all": each light's form factor too, (N, lights) in scene order.
+    py::array_t<double> perLight({py::ssize_t(lightName == "all" ? n : 0), py::ssize_t(nLights)});
+    double* each = perLight.mutable_data();
 
     struct Worker {
         Occluder::Query query;
@@ -365,18 +374,28 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
         for (size_t i = range.begin(); i != range.end(); ++i) {
             Receiver r;
             makeReceiver(pv + 3 * i, nv + 3 * i, r);
-            // Seeded by the point's index, so a result depends on nothing else (as the CLI's
-            // line index).
-            m.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndex), userSeed);
             m.rayOffset = s.rayOffset = receiverRayOffset(occluder, r.point, 1e-9);
             w->aci.setSettings(s);
-            const Estimate e = estimate(method, r, light, w->query, w->aci, m);
-            ff[i] = e.formFactor;
-            grad[3 * i] = e.gradient.x;
-            grad[3 * i + 1] = e.gradient.y;
-            grad[3 * i + 2] = e.gradient.z;
-            rays[i] = int64_t(e.counts.shadowRays());
-            if (hasBound) bound[i] = e.errorBound;
+            double f = 0.0, b = 0.0;
+            Vec3 g(0.0);
+            int64_t count = 0;
+            for (size_t k = 0; k < nLights; ++k) {
+                // Seeded by the point's index and the light, so a result depends on nothing
+                // else (as the CLI's line index).
+                m.seed = mcSeed(uint64_t(i), 0, uint64_t(lightIndices[k]), userSeed);
+                const Estimate e = estimate(method, r, scene.lights[lightIndices[k]], w->query, w->aci, m);
+                if (lightName == "all") each[i * nLights + k] = e.formFactor;
+                f += e.formFactor;
+                g += e.gradient;
+                b += e.errorBound;
+                count += int64_t(e.counts.shadowRays());
+            }
+            ff[i] = f;
+            grad[3 * i] = g.x;
+            grad[3 * i + 1] = g.y;
+            grad[3 * i + 2] = g.z;
+            rays[i] = count;
+            if (hasBound) bound[i] = b;
         }
     };
     if (n > 0 && method == Method::Aci && (settings.distanceGuided || settings.coverage)) {
@@ -401,6 +420,7 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
     out["gradient"] = gradient;
     out["shadow_rays"] = shadowRays;
     if (hasBound) out["error_bound"] = errorBound;
+    if (lightName == "all") out["per_light"] = perLight;
     out["threads"] = threads;
     return out;
 }
@@ -649,13 +669,14 @@ PYBIND11_MODULE(penumbra, m) {
              "light, its gradient with respect to the point (normal fixed) and the shadow rays "
              "spent: `penumbra probe`'s columns, bit for bit.\n\n"
              "points, normals: arrays of shape (N, 3) (normals need not be unit length).\n"
-             "light: the light's name; None takes the only light.\n"
+             "light: the light's name; None takes the only light; 'all' adds every light's "
+             "(and per_light gives each light's form factor, shape (N, lights)).\n"
              "method: 'aci', 'reference', 'mc-adaptive', 'mc-solid-angle' or 'mc-ratio'.\n"
              "settings: aci_grid, aci_steps, aci_mode, samples, mc_threshold, mc_max_depth, "
              "mc_initial_depth, seed, threads.\n\n"
              "Returns a dict: form_factor (N,), gradient (N, 3), shadow_rays (N,) int64, "
-             "error_bound (N,) when the estimator gives one (aci in tangent mode), threads "
-             "(the workers of the TBB arena). Runs in parallel with the GIL released.")
+             "error_bound (N,) when the estimator gives one (aci in tangent mode), per_light "
+             "(N, lights) with light='all', threads (the workers of the TBB arena). Runs in parallel with the GIL released.")
         .def("render", &renderScene, py::arg("width") = py::none(), py::arg("height") = py::none(),
              py::arg("method") = "aci",
              "Renders the scene's camera view as `penumbra render` does, bit for bit.\n\n"

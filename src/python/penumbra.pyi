@@ -79,9 +79,12 @@ class Scene:
     ) -> Dict[str, Any]:
         """Form factor, gradient, shadow rays (and error bound) at each point.
 
+        light: a light's name, None for the only light, or 'all' for the sum over every
+        light (then 'per_light': (N, lights) float64, each light's form factor).
+
         Returns {'form_factor': (N,) float64, 'gradient': (N, 3) float64,
         'shadow_rays': (N,) int64, 'error_bound': (N,) float64 (aci, tangent mode only),
-        'threads': int}.
+        'per_light': (N, lights) float64 (light='all' only), 'threads': int}.
         """
     def render(
         self,

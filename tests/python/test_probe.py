@@ -168,3 +168,31 @@ def test_unoccluded_points_match_lamberts_formula(scene_dict):
         n = normals[i] / np.linalg.norm(normals[i])
         assert r["form_factor"][i] == pytest.approx(lambert(points[i], n, light), rel=1e-12)
         assert r["shadow_rays"][i] <= 1  # one ray, whose certificate covers the light
+
+
+def test_all_lights_equal_the_cli(cli, tmp_path):
+    """light='all' adds the lights (a rectangle, a polygon, a disc) as `probe --light all`
+    does, and per_light holds each one's form factor as `--columns per-light`."""
+    scene_file = tmp_path / "lights.json"
+    scene_file.write_text("""{
+      "lights": [{"name": "key", "corner": [-1,-1,4], "edge_u": [0,2,0], "edge_v": [2,0,0]},
+                 {"name": "hex", "type": "polygon",
+                  "vertices": [[2,0,3],[1,-0.8,3],[0,0,3],[0.5,0.9,3],[1.5,0.9,3]]},
+                 {"name": "round", "type": "disc", "center": [-1.5,0.5,3],
+                  "normal": [0,0,-1], "radius": 0.5}],
+      "obstacles": [{"type": "sphere", "center": [0.3,0.2,2.0], "radius": 0.7,
+                     "analytic": true}]
+    }""")
+    scene = penumbra.Scene.load(str(scene_file))
+    points = np.array([[-2.0, 0.3, 0.0], [1.2, 0.43, 0.0], [0.6, 0.4, 0.0]])
+    normals = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [0.3, 0.0, 1.0]])
+    result = scene.probe(points, normals, light="all")
+    header, rows = cli_probe(cli, str(scene_file), points, normals, "--light", "all",
+                             "--columns", "per-light", "--error-bound")
+    assert_same_as_cli(result, points, header, rows)
+    assert result["per_light"].shape == (3, 3)
+    for k, name in enumerate(["key", "hex", "round"]):
+        column = header.index("form_factor:" + name)
+        assert [row[column] for row in rows] == [g12(v) for v in result["per_light"][:, k]]
+        one = scene.probe(points, normals, light=name)
+        assert np.array_equal(one["form_factor"], result["per_light"][:, k])
