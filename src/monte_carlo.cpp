@@ -164,6 +164,160 @@ Vec3 SphericalRectangle::sample(double u, double v) const {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Uniform points of the emitting surface (area sampling)
+
+LightSurface::LightSurface(const RectLight& light) : mLight(&light) {
+    if (light.shape == LightShape::Disc) {
+        mE1 = glm::normalize(light.edgeU);
+        mE2 = glm::cross(light.normal(), mE1);
+    } else if (light.shape == LightShape::Polygon) {
+        const std::vector<Vec3>& v = light.vertices;
+        double sum = 0.0;
+        for (size_t k = 1; k + 1 < v.size(); ++k) {
+            sum += 0.5 * glm::length(glm::cross(v[k] - v[0], v[k + 1] - v[0]));
+            mCumArea.push_back(sum);
+        }
+    }
+}
+
+Vec3 LightSurface::point(double u, double v) const {
+    const RectLight& l = *mLight;
+    switch (l.shape) {
+        case LightShape::Rect:
+            break;
+        case LightShape::Disc: {
+            // Shirley and Chiu (1997): the square [-1, 1]^2 to the unit disc, each concentric
+            // square's border to a circle of the same index, with area ratio pi / 4 everywhere.
+            const double a = 2.0 * u - 1.0, b = 2.0 * v - 1.0;
+            if (a == 0.0 && b == 0.0) return l.center;
+            double rad, phi;
+            if (std::abs(a) > std::abs(b)) {
+                rad = a;
+                phi = 0.25 * kPi * (b / a);
+            } else {
+                rad = b;
+                phi = 0.5 * kPi - 0.25 * kPi * (a / b);
+            }
+            rad *= l.radius;
+            return l.center + rad * std::cos(phi) * mE1 + rad * std::sin(phi) * mE2;
+        }
+        case LightShape::Polygon: {
+            // The fan of triangles (v0, vk, vk+1): u picks one by cumulative area and then runs
+            // along its far side vk -> vk+1, sqrt(v) from v0 to that side. The area element of
+            // v0 + s ((1 - t) (vk - v0) + t (vk+1 - v0)) is 2 a_k s ds dt = a_k dt dv, and
+            // dt = (A / a_k) du: constant A in (u, v). At t = 1 one triangle ends on the side
+            // the next begins with, so the map is continuous.
+            const std::vector<Vec3>& p = l.vertices;
+            const double total = mCumArea.back();
+            const double at = u * total;
+            size_t k = size_t(std::upper_bound(mCumArea.begin(), mCumArea.end(), at) -
+                              mCumArea.begin());
+            k = std::min(k, mCumArea.size() - 1);
+            const double before = k > 0 ? mCumArea[k - 1] : 0.0;
+            const double t = std::clamp((at - before) / (mCumArea[k] - before), 0.0, 1.0);
+            const double rad = std::sqrt(v);
+            return p[0] + rad * ((1.0 - t) * (p[k + 1] - p[0]) + t * (p[k + 2] - p[0]));
+        }
+    }
+    return l.point(u, v);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The spherical triangle (Arvo 1995, "Stratified sampling of spherical triangles"), derived
+// again here.
+//
+// Triangle ABC on the unit sphere, angle alpha at A, sides c = |AB|, b = |AC| (arcs), area S.
+// A point C' on the side AC at arc length b' from A cuts off the triangle ABC', whose angle at A
+// is still alpha. Sampling in two steps: first C' so that the area of ABC' is u S, then a point
+// on the arc B -> C' whose cosine of the distance to B is uniform between 1 and cos|BC'|. About
+// B the area element is d(cos theta) dphi, so for a given azimuth phi (that is, C') the second
+// step is uniform in area, and the first gives the azimuth its marginal (the area swept). Hence
+// uniform (u, v) -> uniform in solid angle.
+//
+// The first step (Arvo's eq. for q = cos b'): in ABC' let beta', gamma' be the angles at B and
+// C'; Girard gives beta' + gamma' = pi + A' - alpha, A' = u S. With phi = A' - alpha,
+//   cos gamma' = -cos(beta' - phi)                        (gamma' = pi - (beta' - phi))
+//   cos gamma' = -cos alpha cos beta' + sin alpha sin beta' cos c     (law of cosines, angles)
+// so cos beta' (cos alpha - cos phi) = sin beta' (sin phi + sin alpha cos c), i.e. with Arvo's
+//   U = cos phi - cos alpha,   V = sin phi + sin alpha cos c,
+// sin beta' : cos beta' = U : -V (U >= 0, since A' <= S < 2 alpha). Arvo then takes
+// q = cos b' = ((V cos phi - U sin phi) cos alpha - V) / ((V sin phi + U cos phi) sin alpha); we
+// use the four-part formula on (b', alpha, c, beta') instead,
+//   cos c cos alpha = sin c cot b' - sin alpha cot beta'
+//   => tan b' = U sin c / (U cos c cos alpha - V sin alpha),
+// which gives b' itself through atan2 (q near 1 loses b' to cancellation on small triangles),
+// and write U and V without cancellation:
+//   U = 2 sin(A'/2) sin(alpha - A'/2),   V = 2 sin(A'/2) cos(alpha - A'/2) - sin alpha (1 - cos c).
+
+SphericalTriangle::SphericalTriangle(const Vec3& a, const Vec3& b, const Vec3& c) : mA(a), mB(b) {
+    const Vec3 nab = glm::cross(a, b), nac = glm::cross(a, c);
+    const double det = std::abs(glm::dot(a, glm::cross(b, c)));
+    // Van Oosterom and Strackee (1983): tan(S / 2) = |a . (b x c)| / (1 + a.b + b.c + c.a).
+    mSolidAngle = 2.0 * std::atan2(det, 1.0 + glm::dot(a, b) + glm::dot(b, c) + glm::dot(c, a));
+    // alpha is the angle between the planes (a, b) and (a, c): (a x b) x (a x c) = det(a, b, c) a.
+    mAlpha = std::atan2(det, glm::dot(nab, nac));
+    mSinAlpha = std::sin(mAlpha);
+    mCosAlpha = std::cos(mAlpha);
+    mSinC = glm::length(nab);
+    mCosC = glm::dot(a, b);
+    const Vec3 ab = a - b;
+    mOneMinusCosC = 0.5 * glm::dot(ab, ab);
+    mSideB = std::atan2(glm::length(nac), glm::dot(a, c));
+    const Vec3 w = glm::cross(nac, a);  // c - (c . a) a
+    const double lw = glm::length(w);
+    mW = lw > 0.0 ? w / lw : Vec3(0.0);
+}
+
+Vec3 SphericalTriangle::sample(double u, double v) const {
+    // First step: C' on the side AC, at the arc length b' where area(ABC') = u S.
+    const double half = 0.5 * u * mSolidAngle;
+    const double s = 2.0 * std::sin(half);
+    const double bigU = s * std::sin(mAlpha - half);
+    const double bigV = s * std::cos(mAlpha - half) - mSinAlpha * mOneMinusCosC;
+    double side = std::atan2(bigU * mSinC, bigU * mCosC * mCosAlpha - bigV * mSinAlpha);
+    side = std::clamp(side, 0.0, mSideB);
+    const Vec3 cp = std::cos(side) * mA + std::sin(side) * mW;
+    // Second step: 1 - cos(theta) from B uniform in [0, 1 - cos|BC'|], where
+    // 1 - cos|BC'| = |C' - B|^2 / 2 (without cancellation).
+    const Vec3 d = cp - mB;
+    const double oneMinusZ = v * 0.5 * glm::dot(d, d);
+    const double sinTheta = std::sqrt(std::max(0.0, oneMinusZ * (2.0 - oneMinusZ)));
+    const Vec3 t = d - glm::dot(d, mB) * mB;  // C' - (C' . B) B, the tangent at B towards C'
+    const double lt = glm::length(t);
+    if (!(lt > 0.0)) return mB;
+    return (1.0 - oneMinusZ) * mB + sinTheta * (t / lt);
+}
+
+SphericalPolygon::SphericalPolygon(const RectLight& light, const Vec3& origin)
+    : mOrigin(origin), mPlanePoint(light.vertices.at(0)), mNormal(light.normal()) {
+    const std::vector<Vec3>& p = light.vertices;
+    std::vector<Vec3> dir;
+    dir.reserve(p.size());
+    for (const Vec3& q : p) dir.push_back(glm::normalize(q - origin));
+    // Triangle (vk, v0, vk+1) in Arvo's order (A, B, C): its u = 1 side, v0-vk+1, is the next
+    // triangle's u = 0 side, so the fan is swept about v0 without a jump.
+    for (size_t k = 1; k + 1 < p.size(); ++k) {
+        mTriangles.emplace_back(dir[k], dir[0], dir[k + 1]);
+        mSolidAngle += mTriangles.back().solidAngle();
+        mCumSolidAngle.push_back(mSolidAngle);
+    }
+}
+
+Vec3 SphericalPolygon::sample(double u, double v) const {
+    const double at = u * mSolidAngle;
+    size_t k = size_t(std::upper_bound(mCumSolidAngle.begin(), mCumSolidAngle.end(), at) -
+                      mCumSolidAngle.begin());
+    k = std::min(k, mCumSolidAngle.size() - 1);
+    const double before = k > 0 ? mCumSolidAngle[k - 1] : 0.0;
+    const double width = mCumSolidAngle[k] - before;
+    const double uk = width > 0.0 ? std::clamp((at - before) / width, 0.0, 1.0) : 0.5;
+    const Vec3 dir = mTriangles[k].sample(uk, v);
+    // Where the ray from the origin meets the light's plane (both dot products are negative:
+    // the origin is on the emitting side and the direction points at the light).
+    return mOrigin + (glm::dot(mPlanePoint - mOrigin, mNormal) / glm::dot(dir, mNormal)) * dir;
+}
+
+// ---------------------------------------------------------------------------------------------
 // The estimators
 
 namespace {
@@ -209,7 +363,9 @@ Estimate finish(double f, const Receiver& r, uint64_t first, uint64_t second) {
 
 
 // One cell of mc-adaptive's quadtree over the light's (u, v) square, with one sample per
-// quadrant (quadrant q: bit 0 for the upper half in u, bit 1 in v).
+// quadrant (quadrant q: bit 0 for the upper half in u, bit 1 in v). The square is mapped to the
+// emitting surface by LightSurface, whose constant Jacobian makes a cell's share of the light
+// its share of the square, size^2, for every shape.
 struct Cell {
     double u0, v0, size;
     int depth;
@@ -226,16 +382,17 @@ Estimate monteCarloReference(const Receiver& r, const RectLight& light, Occluder
     const int total = std::max(1, settings.samples);
     if (!lightReaches(light, r)) return finish(0.0, r, 0, 0);
     const Setup s(r, light, settings);
+    const LightSurface surface(light);
     Stream rng(settings.seed);
     // A kx x ky jittered grid with kx ky <= N as square as possible; the remaining samples are
     // uniform on the whole light. Each sample is uniform on its stratum and the strata have
-    // equal areas, so the plain mean is unbiased.
+    // equal areas (LightSurface's Jacobian is constant), so the plain mean is unbiased.
     const int kx = std::max(1, int(std::floor(std::sqrt(double(total)))));
     const int ky = total / kx;
     double sum = 0.0;
     uint64_t rays = 0;
     auto add = [&](double u, double v) {
-        const Vec3 p = light.point(u, v);
+        const Vec3 p = surface.point(u, v);
         const double f = areaIntegrand(s, p);
         if (f <= 0.0) return;
         ++rays;
@@ -261,6 +418,7 @@ Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder:
     const double f0 = unoccludedFormFactor(light, r);
     if (!(f0 > 0.0)) return finish(0.0, r, 0, 0);
     const Setup s(r, light, settings);
+    const LightSurface surface(light);
     Stream rng(settings.seed);
     const uint64_t cap = uint64_t(std::max(4, settings.samples));
     uint64_t rays = 0, firstRays = 0;
@@ -271,7 +429,7 @@ Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder:
         const double u = cell.u0 + h * ((q & 1) + rng.next());
         const double v = cell.v0 + h * ((q >> 1) + rng.next());
         cell.at[q] = Vec2(u, v);
-        const Vec3 p = light.point(u, v);
+        const Vec3 p = surface.point(u, v);
         const double f = areaIntegrand(s, p);
         cell.cast[q] = f > 0.0;
         cell.hidden[q] = false;
@@ -347,13 +505,36 @@ Estimate monteCarloAdaptive(const Receiver& r, const RectLight& light, Occluder:
 namespace {
 
 // The cosine-weighted sums over N solid-angle samples shared by mc-solid-angle and mc-ratio.
+// Each sample i has a weight w_i, the inverse of its solid-angle density divided by `scale`:
+// for a rectangle or polygon (sampled uniformly in solid angle) w_i = 1 and scale = S; for a
+// disc (sampled uniformly by area, density cos(theta_L) / (A r^2) per steradian) scale = 1 and
+// w_i = A cos(theta_L) / r^2. Then F = scale / (pi N) sum w_i cos_i V_i.
 struct SolidAngleSums {
-    double solidAngle = 0.0;
-    double visible = 0.0;  // sum of cos_i V_i
-    double all = 0.0;      // sum of cos_i
+    double scale = 0.0;
+    double visible = 0.0;  // sum of w_i cos_i V_i
+    double all = 0.0;      // sum of w_i cos_i
     uint64_t rays = 0;
     int samples = 0;
 };
+
+// `sample(uv, w)` gives the point of the light for a Sobol point and sets its weight w.
+template <class Sample>
+void accumulate(SolidAngleSums& out, const Setup& s, Occluder::Query& query, uint64_t seed,
+                Sample&& sample) {
+    for (int i = 0; i < out.samples; ++i) {
+        const Vec2 uv = sobolOwen2(uint32_t(i), seed);
+        double w = 1.0;  // w * c is then c itself, bit for bit
+        const Vec3 p = sample(uv, w);
+        const Vec3 dir = p - s.m;
+        const double len = glm::length(dir);
+        // Below the horizon the clamped cosine is 0: no ray is needed.
+        const double c = len > 0.0 ? glm::dot(dir, s.n) / len : 0.0;
+        if (!(c > 0.0) || !(w > 0.0)) continue;
+        out.all += w * c;
+        ++out.rays;
+        out.visible += w * c * transmitted(s, p, query);
+    }
+}
 
 SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occluder::Query& query,
                               const McSettings& settings) {
@@ -361,20 +542,36 @@ SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occlude
     out.samples = std::max(1, settings.samples);
     if (!lightReaches(light, r)) return out;
     const Setup s(r, light, settings);
-    const SphericalRectangle rect(light, r.point);
-    out.solidAngle = rect.solidAngle();
-    if (!(out.solidAngle > 0.0)) return out;
-    for (int i = 0; i < out.samples; ++i) {
-        const Vec2 uv = sobolOwen2(uint32_t(i), settings.seed);
-        const Vec3 p = rect.sample(uv.x, uv.y);
-        const Vec3 dir = p - s.m;
-        const double len = glm::length(dir);
-        // Below the horizon the clamped cosine is 0: no ray is needed.
-        const double c = len > 0.0 ? glm::dot(dir, s.n) / len : 0.0;
-        if (!(c > 0.0)) continue;
-        out.all += c;
-        ++out.rays;
-        out.visible += c * transmitted(s, p, query);
+    switch (light.shape) {
+        case LightShape::Rect: {
+            const SphericalRectangle rect(light, r.point);
+            out.scale = rect.solidAngle();
+            if (!(out.scale > 0.0)) return out;
+            accumulate(out, s, query, settings.seed,
+                       [&](const Vec2& uv, double&) { return rect.sample(uv.x, uv.y); });
+            break;
+        }
+        case LightShape::Polygon: {
+            const SphericalPolygon poly(light, r.point);
+            out.scale = poly.solidAngle();
+            if (!(out.scale > 0.0)) return out;
+            accumulate(out, s, query, settings.seed,
+                       [&](const Vec2& uv, double&) { return poly.sample(uv.x, uv.y); });
+            break;
+        }
+        case LightShape::Disc: {
+            const LightSurface surface(light);
+            out.scale = 1.0;
+            accumulate(out, s, query, settings.seed, [&](const Vec2& uv, double& w) {
+                const Vec3 p = surface.point(uv.x, uv.y);
+                const Vec3 c = p - s.m;
+                const double r2 = glm::dot(c, c);
+                const double cosL = -glm::dot(c, s.lightNormal) / std::sqrt(r2);
+                w = r2 > 0.0 ? s.area * cosL / r2 : 0.0;
+                return p;
+            });
+            break;
+        }
     }
     return out;
 }
@@ -384,8 +581,9 @@ SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occlude
 Estimate monteCarloSolidAngle(const Receiver& r, const RectLight& light, Occluder::Query& query,
                               const McSettings& settings) {
     const SolidAngleSums t = solidAngleSums(r, light, query, settings);
-    // Uniform in solid angle, pdf 1 / S: F = (1 / pi) E[cos V] S.
-    return finish(t.solidAngle * t.visible / (kPi * t.samples), r, t.rays, 0);
+    // Uniform in solid angle, pdf 1 / S: F = (1 / pi) E[cos V] S (for a disc, S / N sum w_i
+    // estimates the solid angle's integral instead; see SolidAngleSums).
+    return finish(t.scale * t.visible / (kPi * t.samples), r, t.rays, 0);
 }
 
 Estimate monteCarloRatio(const Receiver& r, const RectLight& light, Occluder::Query& query,
