@@ -46,6 +46,7 @@ struct Segment {  // a piece of located contour and the band around it
     Vec3 a, b;
     double width;
     int own;  // its obstacle, -1 unknown or mixed
+    bool border = false;  // on the border of what emits (exact: nothing to prove near it)
 };
 struct Leaf {  // a square closed by the last pass
     int x0, y0, s;
@@ -478,6 +479,11 @@ struct ContourIntegrator::Lattice {
     };
     bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc) {
         if (glm::dot(a.plane, a.plane) == 0.0 || glm::dot(b.plane, b.plane) == 0.0) return false;
+        // A silhouette meeting a polygon or disc light's border: a shoulder ray's clearance
+        // tells where the silhouette would run on past the border, not where the contour runs
+        // (it turns along the border there), so the piece is checked and refined as in section
+        // 3.2. (Measured: 0.9% of the unoccluded form factor missed under a disc, at any depth.)
+        if (shaped && (a.clip >= 0) != (b.clip >= 0)) return false;
         // Two obstacles' silhouettes meet somewhere between: their tangent lines say nothing
         // about where, so the piece is checked and refined as in section 3.2.
         // (The horizon is a straight line: its meeting with one silhouette is a corner the
@@ -956,7 +962,7 @@ struct ContourIntegrator::Lattice {
             const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
                                                       light.point(a0 / N, b0 / N));
             for (const Segment& g : scratch.mNearSegs)
-                if (distanceToSegment(c, g) + halfDiag <= epsWorld) return;
+                if (!g.border && distanceToSegment(c, g) + halfDiag <= epsWorld) return;
         }
         Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), bandOwner(c, 0.0), c};
         for (const Disc& d : scratch.mDiscs) gapTo(u, d);
@@ -1144,14 +1150,18 @@ struct ContourIntegrator::Lattice {
     int nearestSide(const Leaf& leaf, const Vec3& p, double& best) const {
         best = std::numeric_limits<double>::infinity();
         int side = 1;
+        bool onBorder = false;
         for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
             const Segment& g = scratch.mSegs[i];
             const double dist = distanceToSegment(p, g);
             if (dist < best) {
                 best = dist;
                 side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
+                onBorder = g.border;
             }
         }
+        // Nearest to the (exact) border of what emits: the point's own position decides.
+        if (onBorder) side = emits(p) ? 1 : 0;
         return side;
     }
 
@@ -1337,8 +1347,11 @@ struct ContourIntegrator::Lattice {
             }
             z[q] = crossing(pieces[q].checkVis, pieces[q].checkHid, pieces[q].checkSteps);
             change += std::abs(edgeF(a.c, z[q].c) + edgeF(z[q].c, b.c) - edgeF(a.c, b.c));
-            if (self.mSettings.coverage && a.obstacle != b.obstacle &&
-                a.obstacle != kHorizonContour && b.obstacle != kHorizonContour) {
+            const bool twoSilhouettes = a.obstacle != b.obstacle && a.obstacle != kHorizonContour &&
+                                        b.obstacle != kHorizonContour;
+            // A silhouette meeting a polygon or disc light's border is such a junction too.
+            const bool silhouetteAndBorder = shaped && (a.clip >= 0) != (b.clip >= 0);
+            if (self.mSettings.coverage && (twoSilhouettes || silhouetteAndBorder)) {
                 // Two silhouettes meet somewhere in the square, at a corner one check point
                 // seldom lands on: the square's own form factor is what the piece may miss.
                 const Vec3 q0 = pointOf(c[0]), q1 = pointOf(c[1]), q2 = pointOf(c[2]), q3 = pointOf(c[3]);
@@ -1370,6 +1383,13 @@ struct ContourIntegrator::Lattice {
                 const Vertex& a = x[pieces[q].exitSide];
                 const Vertex& b = x[pieces[q].entrySide];
                 Vec3 mid = 0.5 * (a.c + b.c);
+                if (border[q]) {
+                    // The border itself: exact, so a sample near it is what it says (points
+                    // outside emit nothing, points inside are visible unless a silhouette says
+                    // otherwise, and those have their own segments).
+                    scratch.mSegs.push_back({a.c, b.c, band, -1, true});
+                    continue;
+                }
                 if (arcOk[q] && !arcs[q].straight) {
                     const double w = arcs[q].w;
                     mid = std::isfinite(w) ? (0.25 * a.c + 0.5 * w * arcs[q].k + 0.25 * b.c) / (0.5 + 0.5 * w)
@@ -1456,8 +1476,13 @@ struct ContourIntegrator::Lattice {
         const bool vis = visible(centre, true);
         if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
         const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
-        for (const Vec3& q : light.polygon())
-            if (!(glm::length(q - pc) < cert.radius)) return false;
+        if (light.shape == LightShape::Disc) {
+            // The frame's centre is the disc's: its radius covers it.
+            if (!(light.radius < cert.radius)) return false;
+        } else {
+            for (const Vec3& q : light.polygon())
+                if (!(glm::length(q - pc) < cert.radius)) return false;
+        }
         if (vis) {
             if (light.shape == LightShape::Disc) {
                 const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
