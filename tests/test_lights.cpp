@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "penumbra/form_factor.h"
+#include "support/exact_shadow.h"
 
 using namespace penumbra;
 
@@ -252,6 +253,35 @@ TEST_CASE("contour integration on polygon and disc lights: a sphere's shadow wit
     // within its bound. (Before silhouettes meeting the border were treated as junctions: 1.8%
     // under the disc and 4% for the hexagon cut by the horizon, outside their bounds.)
     CHECK(worst < 0.01);
+}
+
+TEST_CASE("contour integration on polygon lights: a sphere's exact shadow (polygon minus cap)",
+          "[lights][aci]") {
+    // tests/support/exact_shadow.h's closed form of the rectangle minus the sphere's cap,
+    // generalised to convex polygons: for the hexagon and the triangle at the receivers that see
+    // the whole light above their horizon, and a pentagon under two sphere sizes.
+    std::vector<RectLight> lights = {shapedLights()[0], shapedLights()[1],
+                                     polygonLight({Vec3(1.2, 0, 3.2), Vec3(0.3, -1, 3.2), Vec3(-1, -0.4, 3.2),
+                                                   Vec3(-0.8, 0.9, 3.2), Vec3(0.6, 1.1, 3.2)})};
+    for (const AnalyticSphere& sphere : {AnalyticSphere{Vec3(0.2, 0.1, 1.5), 0.3},
+                                         AnalyticSphere{Vec3(-0.3, 0.2, 2.2), 0.12}}) {
+        Occluder occ({sphere});
+        Occluder::Query q = occ.makeQuery();
+        for (const RectLight& l : lights) {
+            for (const Receiver& r : {Receiver{Vec3(0, 0, 0), Vec3(0, 0, 1)},
+                                      Receiver{Vec3(0.7, -0.4, 0), glm::normalize(Vec3(0.3, 0, 1))},
+                                      Receiver{Vec3(0.5, 0.3, 0), Vec3(0, 0, 1)},
+                                      Receiver{Vec3(-0.6, -0.2, 0.4), Vec3(0, 0, 1)}}) {
+                const double exactF = exact::polygonSphereShadowFormFactor(
+                    r.point, r.normal, l.vertices, sphere.center, sphere.radius);
+                const double full = unoccludedFormFactor(l, r);
+                const Estimate e = contourIntegral(r, l, q);
+                CAPTURE(l.vertices.size(), sphere.radius, r.point.x, r.point.y, e.formFactor, exactF, e.errorBound);
+                CHECK(std::abs(e.formFactor - exactF) <= e.errorBound + 1e-12);
+                CHECK(std::abs(e.formFactor - exactF) <= 0.01 * full);
+            }
+        }
+    }
 }
 
 TEST_CASE("contour integration on a polygon light cut by the horizon converges with the lattice",

@@ -163,40 +163,46 @@ inline void trigRoots(double A, double B, double C, std::vector<double>& out) {
 /// Crossing angles are roots of A + B cos x + C sin x (closed form); each sub-arc between
 /// consecutive roots is classified by its midpoint. This covers the cap inside Q (full circle,
 /// no edge pieces), Q inside the cap (full edges, no circle arcs) and disjoint sets uniformly.
-inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& corner,
-                                     const Vec3& edgeU, const Vec3& edgeV, const Vec3& sphereCenter,
-                                     double radius) {
-    requireLightAboveHorizon(m, n, corner, edgeU, edgeV);
+/// The same for a convex planar polygon light (vertices counterclockwise seen from the side it
+/// emits to, which M must be on; every vertex on or above M's horizon): the spherical polygon Q
+/// has any number of edges.
+inline double polygonSphereShadowFormFactor(const Vec3& m, const Vec3& n, const std::vector<Vec3>& poly,
+                                            const Vec3& sphereCenter, double radius) {
+    const size_t count = poly.size();
+    require(count >= 3, "polygonSphereShadowFormFactor: fewer than 3 vertices");
+    const Vec3 lightNormal =
+        glm::normalize(glm::cross(poly[1] - poly[0], poly[2] - poly[0]));  // toward M
+    require(glm::dot(m - poly[0], lightNormal) > 0.0, "light does not emit toward the receiver");
+    for (const Vec3& p : poly)
+        require(glm::dot(p - m, n) >= 0.0, "light is not wholly above the receiver's horizon");
     require(radius > 0.0, "sphereShadowFormFactor: radius must be > 0");
     const Vec3 toCenter = sphereCenter - m;
     const double dist = glm::length(toCenter);
     require(dist > radius, "sphereShadowFormFactor: M is inside the sphere");
-    const Vec3 lightNormal = glm::normalize(glm::cross(edgeU, edgeV));  // points toward M
-    require(glm::dot(sphereCenter - corner, lightNormal) > radius,
+    require(glm::dot(sphereCenter - poly[0], lightNormal) > radius,
             "sphereShadowFormFactor: the sphere is not wholly on M's side of the light plane");
 
     // Directions of the light's corners, ordered so that Q lies to the left of each edge seen
-    // from outside the unit sphere (positive orientation for Stokes): that is the (s, t)
-    // clockwise order, since M sees the light from its emitting side.
+    // from outside the unit sphere (positive orientation for Stokes): the reverse of the
+    // polygon's order, since M sees the light from its emitting side.
     std::vector<Vec3> q;
-    for (const Vec3& p : {corner, corner + edgeV, corner + edgeU + edgeV, corner + edgeU})
-        q.push_back(glm::normalize(p - m));
+    for (size_t i = 0; i < count; ++i) q.push_back(glm::normalize(poly[count - 1 - i] - m));
     require(glm::dot(glm::cross(q[0], q[1]), q[2]) > 0.0,
             "sphereShadowFormFactor: degenerate light seen edge-on");
-    Vec3 edgeNormal[4];
-    double edgeAngle[4];
-    for (int i = 0; i < 4; ++i) {
-        edgeNormal[i] = glm::normalize(glm::cross(q[i], q[(i + 1) % 4]));
-        edgeAngle[i] = angleBetween(q[i], q[(i + 1) % 4]);
+    std::vector<Vec3> edgeNormal(count);
+    std::vector<double> edgeAngle(count);
+    for (size_t i = 0; i < count; ++i) {
+        edgeNormal[i] = glm::normalize(glm::cross(q[i], q[(i + 1) % count]));
+        edgeAngle[i] = angleBetween(q[i], q[(i + 1) % count]);
     }
     auto insideQ = [&](const Vec3& d) {
-        for (int i = 0; i < 4; ++i)
+        for (size_t i = 0; i < count; ++i)
             if (glm::dot(edgeNormal[i], d) < 0.0) return false;
         return true;
     };
 
     double unoccluded = 0.0;
-    for (int i = 0; i < 4; ++i) unoccluded += edgeAngle[i] * glm::dot(edgeNormal[i], n);
+    for (size_t i = 0; i < count; ++i) unoccluded += edgeAngle[i] * glm::dot(edgeNormal[i], n);
 
     const Vec3 a = toCenter / dist;
     const double sinAlpha = radius / dist;
@@ -211,7 +217,7 @@ inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& c
     double hidden = 0.0;
     // Circle arcs inside Q.
     std::vector<double> cuts;
-    for (int i = 0; i < 4; ++i) {
+    for (size_t i = 0; i < count; ++i) {
         const Vec3& mi = edgeNormal[i];
         trigRoots(cosAlpha * glm::dot(mi, a), sinAlpha * glm::dot(mi, e1),
                   sinAlpha * glm::dot(mi, e2), cuts);
@@ -230,7 +236,7 @@ inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& c
         hidden += glm::dot(integral, n);
     }
     // Great-circle edge pieces inside the cap: p(s) = q_i cos s + w sin s, s in [0, beta_i].
-    for (int i = 0; i < 4; ++i) {
+    for (size_t i = 0; i < count; ++i) {
         const Vec3 w = glm::cross(edgeNormal[i], q[i]);  // unit, toward q_{i+1}
         std::vector<double> s;
         trigRoots(-cosAlpha, glm::dot(a, q[i]), glm::dot(a, w), s);
@@ -247,6 +253,15 @@ inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& c
         }
     }
     return (unoccluded - hidden) / kTwoPi;
+}
+
+/// The rectangle's case (see above), through the polygon's.
+inline double sphereShadowFormFactor(const Vec3& m, const Vec3& n, const Vec3& corner,
+                                     const Vec3& edgeU, const Vec3& edgeV, const Vec3& sphereCenter,
+                                     double radius) {
+    requireLightAboveHorizon(m, n, corner, edgeU, edgeV);
+    return polygonSphereShadowFormFactor(m, n, lightPolygon(corner, edgeU, edgeV), sphereCenter,
+                                         radius);
 }
 
 /// True when the open segment M-P misses the (closed) ball.
