@@ -542,23 +542,20 @@ SolidAngleSums solidAngleSums(const Receiver& r, const RectLight& light, Occlude
     out.samples = std::max(1, settings.samples);
     if (!lightReaches(light, r)) return out;
     const Setup s(r, light, settings);
+    // A rectangle's or polygon's exact solid-angle sampler: samples uniform in its solid angle.
+    auto uniformInSolidAngle = [&](const auto& spherical) {
+        out.scale = spherical.solidAngle();
+        if (!(out.scale > 0.0)) return;
+        accumulate(out, s, query, settings.seed,
+                   [&](const Vec2& uv, double&) { return spherical.sample(uv.x, uv.y); });
+    };
     switch (light.shape) {
-        case LightShape::Rect: {
-            const SphericalRectangle rect(light, r.point);
-            out.scale = rect.solidAngle();
-            if (!(out.scale > 0.0)) return out;
-            accumulate(out, s, query, settings.seed,
-                       [&](const Vec2& uv, double&) { return rect.sample(uv.x, uv.y); });
+        case LightShape::Rect:
+            uniformInSolidAngle(SphericalRectangle(light, r.point));
             break;
-        }
-        case LightShape::Polygon: {
-            const SphericalPolygon poly(light, r.point);
-            out.scale = poly.solidAngle();
-            if (!(out.scale > 0.0)) return out;
-            accumulate(out, s, query, settings.seed,
-                       [&](const Vec2& uv, double&) { return poly.sample(uv.x, uv.y); });
+        case LightShape::Polygon:
+            uniformInSolidAngle(SphericalPolygon(light, r.point));
             break;
-        }
         case LightShape::Disc: {
             const LightSurface surface(light);
             out.scale = 1.0;

@@ -7,8 +7,11 @@
 #include <stdexcept>
 #include <vector>
 
+#include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
 #include "penumbra/form_factor.h"
+#include "penumbra/renderer.h"
+#include "penumbra/scene.h"
 #include "support/exact_shadow.h"
 
 using namespace penumbra;
@@ -19,8 +22,9 @@ const Vec3 kDown(0.0, 0.0, -1.0);
 
 // The differential form factor cos cos' / (pi r^2) integrated over the light by a fine midpoint
 // rule on its frame, counting the cells whose centre lies on the emitting surface and above the
-// receiver's horizon (error O(1/n) at the border: n = 2000 gives ~1e-4 relative).
-double bruteForce(const RectLight& l, const Receiver& r, int n) {
+// receiver's horizon (error O(1/n) at the border: n = 2000 gives ~1e-4 relative) and, with a
+// sphere, whose centre's segment to the receiver misses it.
+double bruteForce(const RectLight& l, const Receiver& r, int n, const AnalyticSphere* sphere = nullptr) {
     const Vec3 nl = l.normal();
     const double cell = glm::length(glm::cross(l.edgeU, l.edgeV)) / (double(n) * n);
     double sum = 0.0;
@@ -33,6 +37,15 @@ double bruteForce(const RectLight& l, const Receiver& r, int n) {
             const double c1 = glm::dot(d, r.normal) / std::sqrt(d2);
             const double c2 = -glm::dot(d, nl) / std::sqrt(d2);
             if (c1 <= 0.0 || c2 <= 0.0) continue;
+            if (sphere) {
+                const Vec3 oc = r.point - sphere->center;
+                const double b = glm::dot(oc, d), c = glm::dot(oc, oc) - sphere->radius * sphere->radius;
+                const double disc = b * b - d2 * c;
+                if (disc >= 0.0) {
+                    const double t = (-b - std::sqrt(disc)) / d2;
+                    if (t > 0.0 && t < 1.0) continue;
+                }
+            }
             sum += c1 * c2 / (kPi * d2) * cell;
         }
     return sum;
@@ -161,36 +174,7 @@ TEST_CASE("disc lights: an arc's G is a straight edge's in the limit and adds up
 
 // ---- The contour integrator on polygon and disc lights ----
 
-#include "penumbra/contour_integrator.h"
-
 namespace {
-
-// Brute force with one analytic sphere in the way: the midpoint rule of bruteForce() over the
-// cells whose centre's segment to the receiver misses the sphere.
-double bruteForceBehind(const RectLight& l, const Receiver& r, const AnalyticSphere& s, int n) {
-    const Vec3 nl = l.normal();
-    const double cell = glm::length(glm::cross(l.edgeU, l.edgeV)) / (double(n) * n);
-    double sum = 0.0;
-    for (int j = 0; j < n; ++j)
-        for (int i = 0; i < n; ++i) {
-            const Vec3 p = l.point((i + 0.5) / n, (j + 0.5) / n);
-            if (!l.contains(p)) continue;
-            const Vec3 d = p - r.point;
-            const double d2 = glm::dot(d, d);
-            const double c1 = glm::dot(d, r.normal) / std::sqrt(d2);
-            const double c2 = -glm::dot(d, nl) / std::sqrt(d2);
-            if (c1 <= 0.0 || c2 <= 0.0) continue;
-            const Vec3 oc = r.point - s.center;
-            const double b = glm::dot(oc, d), c = glm::dot(oc, oc) - s.radius * s.radius;
-            const double disc = b * b - d2 * c;
-            if (disc >= 0.0) {
-                const double t = (-b - std::sqrt(disc)) / d2;
-                if (t > 0.0 && t < 1.0) continue;
-            }
-            sum += c1 * c2 / (kPi * d2) * cell;
-        }
-    return sum;
-}
 
 std::vector<RectLight> shapedLights() {
     std::vector<Vec3> hex;
@@ -213,7 +197,7 @@ const std::vector<Receiver>& lightReceivers() {
 
 }  // namespace
 
-TEST_CASE("contour integration on polygon and disc lights: unoccluded, exact in every mode",
+TEST_CASE("contour integration on polygon and disc lights: unoccluded, F and its gradient exact in every mode",
           "[lights][aci]") {
     Occluder none;
     Occluder::Query q = none.makeQuery();
@@ -227,6 +211,14 @@ TEST_CASE("contour integration on polygon and disc lights: unoccluded, exact in 
                 // The border is integrated exactly (straight edges, exact arcs); the horizon's
                 // meeting with a disc's circle is placed to rounding.
                 CHECK(e.formFactor == Approx(unoccludedFormFactor(l, r)).epsilon(1e-7).margin(1e-12));
+                // So is the gradient, but for where the horizon cuts the light: both hold those
+                // points fixed (their sliding changes F to second order only), not the same
+                // points (the contour's on lattice sides, the closed form's on the border),
+                // which moves a disc's gradient by 6e-5 of itself.
+                const GWithDerivative exactG = unoccludedG(l, r);
+                const bool cut = r.point.z > 0.0;
+                for (int k = 0; k < 3; ++k)
+                    CHECK(e.gradient[k] == Approx(glm::dot(exactG.dg[k], r.normal)).epsilon(cut ? 2e-4 : 1e-6).margin(1e-9));
             }
         }
     }
@@ -241,7 +233,7 @@ TEST_CASE("contour integration on polygon and disc lights: a sphere's shadow wit
     for (const RectLight& l : shapedLights()) {
         for (const Receiver& r : lightReceivers()) {
             const Estimate e = contourIntegral(r, l, q);
-            const double ref = bruteForceBehind(l, r, sphere, 1500);
+            const double ref = bruteForce(l, r, 1500, &sphere);
             const double full = unoccludedFormFactor(l, r);
             CAPTURE(int(l.shape), r.point.x, r.point.y, r.point.z, e.formFactor, ref, full, e.errorBound);
             // The brute force's own error: cells cut by the border or the silhouette, about
@@ -292,7 +284,7 @@ TEST_CASE("contour integration on a polygon light cut by the horizon converges w
     Occluder::Query q = occ.makeQuery();
     const RectLight hex = shapedLights()[0];
     const Receiver r = lightReceivers()[2];
-    const double ref = bruteForceBehind(hex, r, sphere, 2000);
+    const double ref = bruteForce(hex, r, 2000, &sphere);
     AciSettings fine;
     fine.steps = 7;
     const Estimate e = contourIntegral(r, hex, q, fine);
@@ -324,8 +316,6 @@ TEST_CASE("contour integration: a rectangle given as 4 vertices gives the rect l
 
 // ---- Several coloured lights in a render ----
 
-#include "penumbra/renderer.h"
-#include "penumbra/scene.h"
 
 TEST_CASE("renders: the image of two coloured lights is the sum of their images", "[lights][renderer]") {
     const std::string lights[2] = {
@@ -355,27 +345,6 @@ TEST_CASE("renders: the image of two coloured lights is the sum of their images"
     // Each light's estimate is the same in both renders; the sum is rounded to float once in
     // the two-light image and twice in the others: a few float ulps of the brightest pixel.
     CHECK(worst <= 4e-7 * top);
-}
-
-TEST_CASE("contour integration on polygon and disc lights: the unoccluded gradient is exact",
-          "[lights][aci][gradient]") {
-    Occluder none;
-    Occluder::Query q = none.makeQuery();
-    for (const RectLight& l : shapedLights()) {
-        for (const Receiver& r : lightReceivers()) {
-            const Estimate e = contourIntegral(r, l, q);
-            const GWithDerivative exactG = unoccludedG(l, r);
-            for (int k = 0; k < 3; ++k) {
-                CAPTURE(int(l.shape), r.point.x, r.point.z, k);
-                // Exact but for where the horizon cuts the light: both hold those points fixed
-                // (their sliding changes F to second order only), but not the same points (the
-                // contour's on lattice sides, the closed form's on the border), which moves a
-                // disc's gradient by 6e-5 of itself.
-                const bool cut = r.point.z > 0.0;
-                CHECK(e.gradient[k] == Approx(glm::dot(exactG.dg[k], r.normal)).epsilon(cut ? 2e-4 : 1e-6).margin(1e-9));
-            }
-        }
-    }
 }
 
 TEST_CASE("scenes: a bad polygon light is refused at its vertex, a disc at its field", "[lights][scene]") {

@@ -13,6 +13,7 @@
 #include "support/render_scene.h"
 #include "penumbra/error.h"
 #include "penumbra/monte_carlo.h"
+#include "support/mc_trials.h"
 #include "penumbra/renderer.h"
 
 using namespace penumbra;
@@ -64,43 +65,11 @@ double integrandMax(const RectLight& light, const Vec3& p) {
     return 1.01 * fMax;
 }
 
-using Estimator =
-    std::function<Estimate(const Receiver&, const RectLight&, Occluder::Query&, const McSettings&)>;
-
-struct Named {
-    const char* name;
-    Estimator estimate;
-};
-
-std::vector<Named> estimators() {
-    return {{"reference", monteCarloReference},
-            {"mc-adaptive", monteCarloAdaptive},
-            {"mc-solid-angle", monteCarloSolidAngle},
-            {"mc-ratio", monteCarloRatio}};
-}
-
-// K independent estimates (seeds 0 .. K-1): their mean and the standard deviation of one.
-struct Trials {
-    double mean = 0.0, sd = 0.0;
-    uint64_t rays = 0;
-};
-
-Trials runTrials(const Estimator& f, const Receiver& r, const RectLight& light,
-                 Occluder::Query& query, McSettings s, int k) {
-    std::vector<double> v;
-    Trials t;
-    for (int i = 0; i < k; ++i) {
-        s.seed = mcSeed(uint64_t(i), 17, 0);
-        const Estimate e = f(r, light, query, s);
-        v.push_back(e.formFactor);
-        t.rays += e.counts.shadowRays();
-    }
-    for (double x : v) t.mean += x;
-    t.mean /= k;
-    for (double x : v) t.sd += (x - t.mean) * (x - t.mean);
-    t.sd = std::sqrt(t.sd / (k - 1));
-    return t;
-}
+using test::Estimator;
+using test::estimators;
+using test::NamedEstimator;
+using test::runTrials;
+using test::Trials;
 
 }  // namespace
 
@@ -232,7 +201,7 @@ TEST_CASE("every Monte Carlo method converges to the closed form of an unocclude
     CHECK(unoccludedFormFactor(light, receivers[0]) ==
           Approx(exact::parallelRectCornerAbove(2.0, 1.5, 4.0)).epsilon(1e-12));
 
-    for (const Named& method : estimators()) {
+    for (const NamedEstimator& method : estimators()) {
         for (size_t ri = 0; ri < receivers.size(); ++ri) {
             const Receiver& r = receivers[ri];
             const double f0 = unoccludedFormFactor(light, r);
@@ -269,24 +238,13 @@ TEST_CASE("every Monte Carlo method converges to the exact sphere shadow", "[mc]
             p, kUp, light.corner, light.edgeU, light.edgeV, kSphereCenter, kSphereRadius);
         REQUIRE(exactF > 0.05 * f0);
         REQUIRE(exactF < 0.95 * f0);
-        for (const Named& method : estimators()) {
+        for (const NamedEstimator& method : estimators()) {
             const std::string name = method.name;
-            McSettings s;
-            s.samples = 64;
-            int k = 100;
-            double biasAllowance = 0.0;
-            if (name == "mc-adaptive") {
-                // Adaptive subdivision is biased (Kirk and Arvo 1991): a cell whose four rays
-                // agree is not split even when an edge crosses it, and the rays that triggered a
-                // split are kept. The bias vanishes as the starting grid refines (measured: 3-14%
-                // of F from the whole light, 0.1% from a 16 x 16 grid), so it is tested there,
-                // with splits still happening, and allowed 0.5% of F.
-                s.initialDepth = 4;
-                s.threshold = 0.0005;
-                s.samples = 4096;
-                k = 40;
-                biasAllowance = 0.005 * exactF;
-            }
+            // mc-adaptive from a 16 x 16 grid (its bias, support/mc_trials.h).
+            const test::TrialPlan plan = test::trialPlan(name, 100, exactF);
+            const McSettings& s = plan.settings;
+            const int k = name == "mc-adaptive" ? 40 : plan.k;
+            const double biasAllowance = plan.biasAllowance;
             const Trials t = runTrials(method.estimate, r, light, query, s, k);
             // The known bound on the spread of one estimate that averages N samples: each
             // sample's value lies in [0, max], so with independent samples its variance is at
@@ -344,7 +302,7 @@ TEST_CASE("Monte Carlo ray counts: N above the horizon, none below, 4 for a unif
     const Receiver umbra{Vec3(0.6, 0.4, 0.0), kUp};   // the light's centre behind the sphere's
     const Receiver below{Vec3(0.0, 0.0, 0.0), -kUp};  // the light is behind its horizon
     const Receiver behind{Vec3(0.0, 0.0, 5.0), kUp};  // above the light: its back side
-    for (const Named& method : estimators()) {
+    for (const NamedEstimator& method : estimators()) {
         INFO(method.name);
         const bool adaptive = std::string(method.name) == "mc-adaptive";
         query.resetCount();

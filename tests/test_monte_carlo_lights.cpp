@@ -15,6 +15,7 @@
 
 #include "support/exact_shadow.h"
 #include "penumbra/monte_carlo.h"
+#include "support/mc_trials.h"
 
 using namespace penumbra;
 
@@ -58,45 +59,11 @@ std::vector<NamedLight> lights() {
             {"disc", disc()}};
 }
 
-using Estimator =
-    std::function<Estimate(const Receiver&, const RectLight&, Occluder::Query&, const McSettings&)>;
-
-struct NamedEstimator {
-    const char* name;
-    Estimator estimate;
-};
-
-std::vector<NamedEstimator> estimators() {
-    return {{"reference", monteCarloReference},
-            {"mc-adaptive", monteCarloAdaptive},
-            {"mc-solid-angle", monteCarloSolidAngle},
-            {"mc-ratio", monteCarloRatio}};
-}
-
-// K independent estimates (seeds from mcSeed(0 .. K-1, salt)): their mean, the standard
-// deviation of one, and the rays cast in all.
-struct Trials {
-    double mean = 0.0, sd = 0.0;
-    uint64_t rays = 0;
-    double standardError(int k) const { return sd / std::sqrt(double(k)); }
-};
-
-Trials runTrials(const Estimator& f, const Receiver& r, const RectLight& light,
-                 Occluder::Query& query, McSettings s, int k, uint64_t salt = 17) {
-    std::vector<double> v;
-    Trials t;
-    for (int i = 0; i < k; ++i) {
-        s.seed = mcSeed(uint64_t(i), salt, 0);
-        const Estimate e = f(r, light, query, s);
-        v.push_back(e.formFactor);
-        t.rays += e.counts.shadowRays();
-    }
-    for (double x : v) t.mean += x;
-    t.mean /= k;
-    for (double x : v) t.sd += (x - t.mean) * (x - t.mean);
-    t.sd = std::sqrt(t.sd / (k - 1));
-    return t;
-}
+using test::Estimator;
+using test::estimators;
+using test::NamedEstimator;
+using test::runTrials;
+using test::Trials;
 
 // Solid angle of the triangle (a, b, c) seen from the origin by Girard's theorem (the sum of
 // its angles minus pi), independent of the library's Van Oosterom and Strackee formula. In long
@@ -185,63 +152,68 @@ constexpr double kChi2Df5 = 22.5, kChi2Df15 = 40.0;
 
 }  // namespace
 
+// n points drawn by `draw` from uniform (u, v), counted into `cells` cells by `cellOf`, which
+// also clears `ok` for a point that is not where it belongs (checked: none may be).
+template <class Draw, class CellOf>
+std::vector<int> histogram(int n, uint64_t seed, int cells, Draw draw, CellOf cellOf) {
+    std::mt19937_64 gen(seed);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    std::vector<int> counts(size_t(cells), 0);
+    bool ok = true;
+    for (int i = 0; i < n; ++i) {
+        const double u = uni(gen);
+        const Vec3 p = draw(u, uni(gen));
+        ++counts[size_t(cellOf(p, ok))];
+    }
+    CHECK(ok);
+    return counts;
+}
+
+// Draws n points through the light's area map: all must lie on the light (at height 4), and
+// the chi-square of their counts over `cells` equal-area cells (cellOf gives a point's cell)
+// stay under `limit`.
+template <class CellOf>
+void checkUniformOnSurface(const RectLight& l, int cells, uint64_t seed, CellOf cellOf, double limit) {
+    const int n = 100000;
+    const LightSurface surface(l);
+    const std::vector<int> counts = histogram(
+        n, seed, cells, [&](double u, double v) { return surface.point(u, v); },
+        [&](const Vec3& p, bool& ok) {
+            ok = ok && l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
+            return cellOf(p);
+        });
+    const double chi2 = chiSquare(counts, std::vector<double>(size_t(cells), double(n) / cells));
+    INFO("chi-square " << chi2);
+    CHECK(chi2 < limit);
+}
+
 TEST_CASE("the area maps put uniform points on a polygon's or a disc's emitting surface",
           "[mc][lights]") {
-    std::mt19937_64 gen(5);
-    std::uniform_real_distribution<double> uni(0.0, 1.0);
-    const int n = 100000;
     SECTION("hexagon: six equal triangles about its centre") {
-        const RectLight l = hexagon();
-        const LightSurface surface(l);
-        std::vector<int> counts(6, 0);
-        bool inside = true;
-        for (int i = 0; i < n; ++i) {
-            const Vec3 p = surface.point(uni(gen), uni(gen));
-            inside &= l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
-            // Vertex k is at angle -k pi / 3; sector k runs from it to vertex k + 1.
+        // Vertex k is at angle -k pi / 3; sector k runs from it to vertex k + 1.
+        checkUniformOnSurface(hexagon(), 6, 5, [](const Vec3& p) {
             const double a = std::fmod(-std::atan2(p.y, p.x) + 2.0 * kPi, 2.0 * kPi);
-            ++counts[size_t(std::min(5, int(a / (kPi / 3.0))))];
-        }
-        CHECK(inside);
-        const double chi2 = chiSquare(counts, std::vector<double>(6, n / 6.0));
-        INFO("chi-square " << chi2);
-        CHECK(chi2 < kChi2Df5);
+            return std::min(5, int(a / (kPi / 3.0)));
+        }, kChi2Df5);
     }
     SECTION("triangle: 16 equal cells") {
         const RectLight l = triangle();
         const Vec3 tri[3] = {l.vertices[0], l.vertices[1], l.vertices[2]};
-        const LightSurface surface(l);
         const TriangleCells cells;
-        std::vector<int> counts(16, 0);
-        bool inside = true;
-        for (int i = 0; i < n; ++i) {
-            const Vec3 p = surface.point(uni(gen), uni(gen));
-            inside &= l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
+        checkUniformOnSurface(l, 16, 5, [&](const Vec3& p) {
             const Vec2 b = barycentric(tri, p);
-            ++counts[size_t(cells.cellIndex(b.x, b.y))];
-        }
-        CHECK(inside);
-        const double chi2 = chiSquare(counts, std::vector<double>(16, n / 16.0));
-        INFO("chi-square " << chi2);
-        CHECK(chi2 < kChi2Df15);
+            return cells.cellIndex(b.x, b.y);
+        }, kChi2Df15);
     }
     SECTION("disc: 4 rings of equal area x 4 quadrants") {
         const RectLight l = disc();
         const LightSurface surface(l);
-        std::vector<int> counts(16, 0);
-        bool inside = true;
-        for (int i = 0; i < n; ++i) {
-            const Vec3 p = surface.point(uni(gen), uni(gen));
-            inside &= l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
+        checkUniformOnSurface(l, 16, 5, [](const Vec3& p) {
             const double r2 = p.x * p.x + p.y * p.y;  // radius 1: ring k holds r^2 in [k, k+1) / 4
             const int ring = std::min(3, int(4.0 * r2));
             const int quadrant = (p.x >= 0.0 ? 0 : 1) + (p.y >= 0.0 ? 0 : 2);
-            ++counts[size_t(4 * ring + quadrant)];
-        }
-        CHECK(inside);
-        const double chi2 = chiSquare(counts, std::vector<double>(16, n / 16.0));
-        INFO("chi-square " << chi2);
-        CHECK(chi2 < kChi2Df15);
+            return 4 * ring + quadrant;
+        }, kChi2Df15);
         // The border of the square is the circle, its centre the disc's.
         CHECK(glm::length(surface.point(0.5, 0.5) - l.center) < 1e-15);
         CHECK(std::abs(glm::length(surface.point(1.0, 0.3) - l.center) - 1.0) < 1e-12);
@@ -301,18 +273,13 @@ TEST_CASE("Arvo's parametrization of a spherical triangle is uniform in solid an
         // A histogram over the 16 cells against their solid angles: chi-square, 15 degrees of
         // freedom.
         const int n = 200000;
-        std::mt19937_64 gen(11);
-        std::uniform_real_distribution<double> uni(0.0, 1.0);
-        std::vector<int> counts(16, 0);
-        bool inside = true;
-        for (int i = 0; i < n; ++i) {
-            const double u = uni(gen);
-            const Vec3 p = hit(st.sample(u, uni(gen)));
-            const Vec2 bc = barycentric(tri, p);
-            inside &= bc.x >= -1e-9 && bc.y >= -1e-9 && bc.x + bc.y <= 1.0 + 1e-9;
-            ++counts[size_t(cells.cellIndex(bc.x, bc.y))];
-        }
-        CHECK(inside);
+        const std::vector<int> counts = histogram(
+            n, 11, 16, [&](double u, double v) { return hit(st.sample(u, v)); },
+            [&](const Vec3& p, bool& ok) {
+                const Vec2 bc = barycentric(tri, p);
+                ok = ok && bc.x >= -1e-9 && bc.y >= -1e-9 && bc.x + bc.y <= 1.0 + 1e-9;
+                return cells.cellIndex(bc.x, bc.y);
+            });
         std::vector<double> expected;
         double spread = 0.0;
         for (const auto& k : cells.corners) {
@@ -356,18 +323,13 @@ TEST_CASE("a polygon's fan of spherical triangles is sampled on the light, unifo
         CHECK(jump < 0.01);  // a jump from one triangle to another would be ~ 1
         // A histogram over the six sectors against their solid angles: 5 degrees of freedom.
         const int n = 120000;
-        std::mt19937_64 gen(3);
-        std::uniform_real_distribution<double> uni(0.0, 1.0);
-        std::vector<int> counts(6, 0);
-        bool onLight = true;
-        for (int i = 0; i < n; ++i) {
-            const double u = uni(gen);
-            const Vec3 p = sp.sample(u, uni(gen));
-            onLight &= l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
-            const double a = std::fmod(-std::atan2(p.y, p.x) + 2.0 * kPi, 2.0 * kPi);
-            ++counts[size_t(std::min(5, int(a / (kPi / 3.0))))];
-        }
-        CHECK(onLight);
+        const std::vector<int> counts = histogram(
+            n, 3, 6, [&](double u, double v) { return sp.sample(u, v); },
+            [&](const Vec3& p, bool& ok) {
+                ok = ok && l.contains(p) && std::abs(p.z - 4.0) < 1e-12;
+                const double a = std::fmod(-std::atan2(p.y, p.x) + 2.0 * kPi, 2.0 * kPi);
+                return std::min(5, int(a / (kPi / 3.0)));
+            });
         std::vector<double> expected;
         for (double s : sector) expected.push_back(n * s / total);
         const double chi2 = chiSquare(counts, expected);
@@ -465,19 +427,11 @@ TEST_CASE("behind a sphere, every Monte Carlo method agrees with a high-count re
             }
             for (const NamedEstimator& method : estimators()) {
                 const std::string name = method.name;
-                McSettings s;
-                s.samples = 64;
-                int k = 64;
-                double biasAllowance = 0.0;
-                if (name == "mc-adaptive") {
-                    // Biased (see test_monte_carlo.cpp): tested from a 16 x 16 grid, where the
-                    // bias is small, and allowed 0.5% of F.
-                    s.initialDepth = 4;
-                    s.threshold = 0.0005;
-                    s.samples = 4096;
-                    k = 16;
-                    biasAllowance = 0.005 * ref.mean;
-                }
+                // mc-adaptive from a 16 x 16 grid (its bias, support/mc_trials.h).
+                const test::TrialPlan plan = test::trialPlan(name, 64, ref.mean);
+                const McSettings& s = plan.settings;
+                const int k = plan.k;
+                const double biasAllowance = plan.biasAllowance;
                 const Trials t = runTrials(method.estimate, r, nl.light, query, s, k);
                 const double se = std::sqrt(t.standardError(k) * t.standardError(k) +
                                             ref.standardError(kr) * ref.standardError(kr));
