@@ -604,13 +604,12 @@ struct ContourIntegrator::Lattice {
         }
     }
 
-    // Dichotomy between a visible and a hidden lattice point (section 3.1); the vertex is the
-    // middle of the final interval, or the exact horizon crossing when the hidden end is below
-    // the receiver's tangent plane. With distanceGuided, samples go where the secant through
-    // the ends' signed clearances puts the silhouette (still lattice points, still narrowing
-    // to one final interval) and the vertex is interpolated inside that interval.
-    // The contour vertex on the segment vis -> hid (vis visible, hid hidden), by dichotomy.
-    // In the distance-guided modes where a dichotomy stops depends on the side's length, so
+    // The contour vertex between a visible and a hidden lattice point, by dichotomy (section
+    // 3.1): the middle of the final interval, or the exact crossing of the border when the
+    // hidden end emits nothing (below the horizon, off a polygon or disc light). With
+    // distanceGuided, samples go where the ends' signed clearances put the silhouette (still
+    // lattice points, still narrowing to one final interval) and the vertex is interpolated
+    // inside that interval (crossingOnSegment, crossingNewton). In the distance-guided modes where a dichotomy stops depends on the side's length, so
     // two squares of different sizes sharing part of a side (a T-junction) would place their
     // vertices differently and leave a gap in the contour: a crossing of a light-lattice line
     // is therefore kept with its final bracket, and any later side holding that bracket (the
@@ -1087,7 +1086,7 @@ struct ContourIntegrator::Lattice {
             const int h = static_cast<int>(u.size) / 2;
             const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
             for (const LatticePoint& q : cand) {
-                if (scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] != scratch.mGeneration) {
+                if (!traced(q)) {
                     out = q;
                     return true;
                 }
