@@ -6,6 +6,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetUtil.h>
 #include <openvdb/tools/RayIntersector.h>
+#include <openvdb/tools/Count.h>
 
 #include <algorithm>
 #include <cmath>
@@ -40,9 +41,9 @@ public:
                     (c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(), (c & 4) ? hi.z() : lo.z()));
                 mBounds.extend(Vec3(p.x(), p.y(), p.z()));
             }
-            float lo0 = 0.0f, hi0 = 0.0f;
-            mGrid->evalMinMax(lo0, hi0);
-            mMaxDensity = std::max(0.0, double(hi0));
+            // The largest active value (the active bounding box above is not empty).
+            const openvdb::math::MinMax<float> range = openvdb::tools::minMax(mGrid->tree(), false);
+            mMaxDensity = std::max(0.0, double(range.max()));
             // One voxel of dilation: the interpolation kernel reaches that far.
             if (mMaxDensity > 0.0) mIntersector = std::make_unique<VolumeIntersector>(*mGrid, 1);
         }

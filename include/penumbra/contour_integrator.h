@@ -57,8 +57,8 @@ public:
     ~ContourIntegrator();
 
 private:
-    struct Lattice;
-    struct Scratch;  // the sample lattice, coverage state and kept corners (contour_integrator.cpp)
+    struct Lattice;  // one evaluation (src/contour_lattice.h, members in src/contour_*.cpp)
+    struct Scratch;  // the sample lattice, coverage state and kept corners (src/contour_lattice.h)
     AciSettings mSettings;
     std::unique_ptr<Scratch> mScratch;
     bool mFanPiece = false;  // evaluating one triangle of a polygon light's fan (no second clip)

@@ -1,0 +1,148 @@
+// What emits: the part of the light's frame above the receiver's horizon, inside a polygon
+// light's cutting edges and a disc light's circle. Vertices on that border are placed exactly
+// and contour pieces along it are walked exactly (straight edges, circle arcs).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "contour_lattice.h"
+
+namespace penumbra {
+
+bool ContourIntegrator::Lattice::emits(const Vec3& p) const {
+    if (above(p) <= 0.0) return false;
+    for (size_t i = 0; i < cuts.size(); ++i)
+        if (cutValue(i, p) < 0.0) return false;
+    return light.shape != LightShape::Disc || glm::length(p - light.center) <= light.radius;
+}
+
+// The unit normal, in the light's plane, pointing into what emits, of border `clip` at p.
+Vec3 ContourIntegrator::Lattice::inwardAt(int clip, const Vec3& p) const {
+    if (clip == kClipHorizon) {
+        const Vec3 m = rec.normal - glm::dot(rec.normal, lightNormal) * lightNormal;
+        return glm::length(m) > 0.0 ? glm::normalize(m) : Vec3(0.0);
+    }
+    if (clip == kClipDisc) return glm::normalize(light.center - p);
+    return cuts[static_cast<size_t>(clip)].inward;
+}
+
+// Where the segment pv -> ph (pv emitting, ph not) leaves what emits, as a fraction of it,
+// and through which border (`clip`).
+double ContourIntegrator::Lattice::borderCrossing(const Vec3& pv, const Vec3& ph, int& clip) const {
+    double best = 1.0;
+    clip = kClipHorizon;
+    auto consider = [&](double fv, double fh, int which) {
+        if (!(fh < 0.0) || !(fv >= 0.0)) return;
+        const double t = fv / (fv - fh);
+        if (t < best) best = t, clip = which;
+    };
+    consider(above(pv), above(ph), kClipHorizon);
+    for (size_t i = 0; i < cuts.size(); ++i) consider(cutValue(i, pv), cutValue(i, ph), static_cast<int>(i));
+    if (light.shape == LightShape::Disc) {
+        // |pv + t d - c|^2 = r^2, the larger root (pv is inside).
+        const Vec3 d = ph - pv, e = pv - light.center;
+        const double a = glm::dot(d, d), b = glm::dot(e, d), c = glm::dot(e, e) - light.radius * light.radius;
+        const double disc = b * b - a * c;
+        if (a > 0.0 && disc >= 0.0) {
+            const double t = (-b + std::sqrt(disc)) / a;
+            if (t >= 0.0 && t < best) best = t, clip = kClipDisc;
+        }
+    }
+    return std::clamp(best, 0.0, 1.0);
+}
+
+// The border of what emits from a to b (both on it), counterclockwise about the light's
+// normal: straight along the horizon and polygon edges, exact arcs along a disc's circle,
+// turning at their meeting points. False (nothing emitted) when the walk would need the
+// frame's own border or more turns than a square can hold.
+bool ContourIntegrator::Lattice::emitBorder(const Vertex& a, const Vertex& b, bool dryRun,
+                                            double& length) {
+    Vec3 x = a.c;
+    int on = a.clip;
+    length = 0.0;
+    const double tiny = 1e-9 * unit;
+    for (int turn = 0; turn < 4; ++turn) {
+        if (on == kClipDisc) {
+            // Along the circle: to b, or to the first line it crosses going out.
+            const Vec3 e1 = glm::normalize(light.edgeU), e2 = glm::normalize(light.edgeV);
+            auto angle = [&](const Vec3& p) {
+                const Vec3 d = p - light.center;
+                return std::atan2(glm::dot(d, e2), glm::dot(d, e1));
+            };
+            auto ahead = [&](double phi) {
+                double d = phi - angle(x);
+                while (d <= 1e-12) d += 2.0 * kPi;
+                return d;
+            };
+            double best = b.clip == kClipDisc ? ahead(angle(b.c)) : std::numeric_limits<double>::infinity();
+            int next = kClipDisc;
+            auto line = [&](double f0, const Vec3& m, int which) {
+                // f(phi) = f0 + r (cos phi m.e1 + sin phi m.e2); leaving where it falls through 0.
+                const double a1 = light.radius * glm::dot(m, e1), a2 = light.radius * glm::dot(m, e2);
+                const double amp = std::hypot(a1, a2);
+                if (!(amp > std::abs(f0))) return;
+                const double mid = std::atan2(a2, a1), half = std::acos(-f0 / amp);
+                const double d = ahead(mid + half);  // f decreasing through 0 there
+                if (d < best) best = d, next = which;
+            };
+            line(above(light.center), inwardAt(kClipHorizon, x), kClipHorizon);
+            for (size_t i = 0; i < cuts.size(); ++i) line(cutValue(i, light.center), cuts[i].inward, static_cast<int>(i));
+            if (!std::isfinite(best)) return false;
+            const double phi = angle(x) + best;
+            const Vec3 y = next == kClipDisc ? b.c : light.center + light.radius * (std::cos(phi) * e1 + std::sin(phi) * e2);
+            length += light.radius * best;
+            if (!dryRun) {
+                const EdgeDerivative e = discArcG(light, x, y, rec.point);
+                g += e.g;
+                if (self.mSettings.gradient) dg += e.dg;
+            }
+            if (next == kClipDisc) return true;
+            x = y, on = next;
+            continue;
+        }
+        // Along a line: its direction keeps what emits on the left.
+        const Vec3 m = inwardAt(on, x);
+        const Vec3 d = glm::cross(m, lightNormal);
+        double best = std::numeric_limits<double>::infinity();
+        int next = -1;
+        if (b.clip == on) {
+            const double s = glm::dot(b.c - x, d);
+            if (s >= -tiny) best = std::max(s, 0.0), next = on;
+        }
+        auto line = [&](double f, const Vec3& mj, int which) {
+            const double rate = glm::dot(mj, d);
+            if (!(rate < 0.0) || which == on) return;
+            const double s = f / -rate;
+            if (s > tiny && s < best) best = s, next = which;
+        };
+        line(above(x), inwardAt(kClipHorizon, x), kClipHorizon);
+        for (size_t i = 0; i < cuts.size(); ++i) line(cutValue(i, x), cuts[i].inward, static_cast<int>(i));
+        if (light.shape == LightShape::Disc && on != kClipDisc) {
+            const Vec3 e = x - light.center;
+            const double bb = glm::dot(e, d), c = glm::dot(e, e) - light.radius * light.radius;
+            const double disc = bb * bb - c;
+            if (disc >= 0.0) {
+                const double s = -bb + std::sqrt(disc);
+                if (s > tiny && s < best) best = s, next = kClipDisc;
+            }
+        }
+        if (next < 0 && b.clip != on) return false;
+        if (!std::isfinite(best)) return false;
+        const Vec3 y = next == on ? b.c : x + best * d;
+        length += best;
+        if (!dryRun) emit(x, y);
+        if (next == on) return true;
+        x = y, on = next;
+    }
+    return false;
+}
+
+// Whether the piece from a to b (both on the border of what emits) is that border, walked
+// exactly, rather than a silhouette: true when the walk stays near the square of side s.
+bool ContourIntegrator::Lattice::alongBorder(const Vertex& a, const Vertex& b, int s) {
+    double length = 0.0;
+    return a.clip >= 0 && b.clip >= 0 && emitBorder(a, b, true, length) &&
+           length <= 4.0 * s * unit;
+}
+
+}  // namespace penumbra

@@ -1,0 +1,435 @@
+// Certified coverage (AciSettings::coverage): every point of the light inside a disc that a
+// shadow ray's certificate proves, or within epsilon of a located contour piece; rays where
+// neither holds, a new pass where one contradicts the contour, and the error bound from what
+// stays unproven.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "contour_lattice.h"
+
+namespace penumbra {
+
+// Coverage: a ray to the light's centre; true when its disc covers the whole light (which
+// is then wholly visible or wholly hidden, and integrated).
+bool ContourIntegrator::Lattice::wholeLight() {
+    const LatticePoint centre{N / 2, N / 2};
+    const Vec3 pc = pointOf(centre);
+    for (const Vec3& q : light.polygon())
+        if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
+    const bool vis = visible(centre, true);
+    if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
+    const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
+    if (light.shape == LightShape::Disc) {
+        // The frame's centre is the disc's: its radius covers it.
+        if (!(light.radius < cert.radius)) return false;
+    } else {
+        for (const Vec3& q : light.polygon())
+            if (!(glm::length(q - pc) < cert.radius)) return false;
+    }
+    if (vis) {
+        if (light.shape == LightShape::Disc) {
+            const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
+            const EdgeDerivative e = discArcG(light, start, start, rec.point);
+            g += e.g;
+            if (self.mSettings.gradient) dg += e.dg;
+        } else {
+            const std::vector<Vec3> poly = light.polygon();
+            for (size_t i = 0; i < poly.size(); ++i) emit(poly[i], poly[(i + 1) % poly.size()]);
+        }
+    }
+    return true;
+}
+
+// Form factor of the light's part inside the lattice square (x0, y0, s), for bounds.
+double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const {
+    const Vec3 p0 = pointOf({x0, y0}), p1 = pointOf({x0 + s, y0});
+    const Vec3 p2 = pointOf({x0 + s, y0 + s}), p3 = pointOf({x0, y0 + s});
+    return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
+}
+
+// Whether the part of the cell (lattice coordinates a0, b0, side `size`) above the horizon
+// lies in one of the gathered discs; with `own` >= 0, a disc's radius that excludes that
+// obstacle counts (Certificate::radiusOthers).
+bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, int own) const {
+    Vec3 pts[8];
+    int n = 0;
+    const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
+                       light.point((a0 + size) / N, (b0 + size) / N),
+                       light.point(a0 / N, (b0 + size) / N)};
+    double h[4];
+    for (int i = 0; i < 4; ++i) h[i] = above(q[i]);
+    for (int i = 0; i < 4; ++i) {
+        const int j = (i + 1) & 3;
+        if (h[i] > 0.0) pts[n++] = q[i];
+        if ((h[i] > 0.0) != (h[j] > 0.0)) pts[n++] = q[i] + (h[i] / (h[i] - h[j])) * (q[j] - q[i]);
+    }
+    if (n == 0) return true;  // below the horizon: hidden, no ray needed
+    for (const Disc& d : scratch.mDiscs) {
+        const double r2 = own >= 0 && d.obstacle == own ? std::max(d.r2, d.ro2) : d.r2;
+        bool all = r2 > 0.0;
+        for (int i = 0; i < n && all; ++i) {
+            const Vec3 e = pts[i] - d.c;
+            all = glm::dot(e, e) < r2;
+        }
+        if (all) return true;
+    }
+    return false;
+}
+
+// Whether the cell lies wholly outside a polygon light's cutting edges or a disc's circle.
+bool ContourIntegrator::Lattice::cellOutside(double a0, double b0, double size) const {
+    const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
+                       light.point((a0 + size) / N, (b0 + size) / N),
+                       light.point(a0 / N, (b0 + size) / N)};
+    for (size_t i = 0; i < cuts.size(); ++i) {
+        bool all = true;
+        for (const Vec3& p : q) all = all && cutValue(i, p) < 0.0;
+        if (all) return true;
+    }
+    if (light.shape != LightShape::Disc) return false;
+    // The circle's centre's distance to the cell (zero inside it).
+    double inside = 1.0, nearest = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < 4; ++i) {
+        const Vec3 e = q[(i + 1) & 3] - q[i];
+        const double t = std::clamp(glm::dot(light.center - q[i], e) / glm::dot(e, e), 0.0, 1.0);
+        nearest = std::min(nearest, glm::length(q[i] + t * e - light.center));
+        inside = std::min(inside, glm::dot(glm::cross(e, light.center - q[i]), lightNormal));
+    }
+    return inside < 0.0 && nearest > light.radius;
+}
+
+// Distance from a light point to a contour segment.
+double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segment& g) {
+    const Vec3 d = g.b - g.a;
+    const double dd = glm::dot(d, d);
+    const double t = dd > 0.0 ? std::clamp(glm::dot(p - g.a, d) / dd, 0.0, 1.0) : 0.0;
+    return glm::length(g.a + t * d - p);
+}
+
+// The obstacle of a gathered contour segment whose band (its width around it) holds the
+// whole cell, -1 when none (or the segment's obstacle is unknown).
+int ContourIntegrator::Lattice::bandOwner(const Vec3& centre, double halfDiag) const {
+    for (const Segment& g : scratch.mNearSegs) {
+        if (g.own >= 0 && distanceToSegment(centre, g) + halfDiag <= g.width) return g.own;
+    }
+    return -1;
+}
+
+// Collects every uncovered cell of side `minSize` in the cell (a0, b0, size) into
+// scratch.mUncovered, with its centre's distance to the nearest disc that would prove it.
+// `leafOwn` >= 0: the cell lies in a contour square whose pieces all belong to that
+// obstacle (the square is within its own contour's band).
+void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size, double minSize,
+                                                int leafOwn) const {
+    if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
+    if (cellInDisc(a0, b0, size, -1)) return;
+    (void)leafOwn;
+    const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
+    if (!scratch.mNearSegs.empty()) {
+        const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
+                                                  light.point(a0 / N, b0 / N));
+        const int own = bandOwner(c, halfDiag);
+        if (own >= 0 && cellInDisc(a0, b0, size, own)) return;
+    }
+    if (size > minSize) {
+        const double h = 0.5 * size;
+        for (int q = 0; q < 4; ++q)
+            uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, leafOwn);
+        return;
+    }
+    if (!emits(c)) return;
+    if (minSize <= 1.0) {
+        // The final count: a cell within epsilon of a located contour piece belongs to the
+        // piece's strip (its own term of the bound), not to what coverage left open.
+        const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
+                                                  light.point(a0 / N, b0 / N));
+        for (const Segment& g : scratch.mNearSegs)
+            if (!g.border && distanceToSegment(c, g) + halfDiag <= epsWorld) return;
+    }
+    Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), bandOwner(c, 0.0), c};
+    for (const Disc& d : scratch.mDiscs) gapTo(u, d);
+    scratch.mUncovered.push_back(u);
+}
+
+// Narrows an uncovered cell's distance to proven ground by one disc.
+void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d) {
+    const double r2 = u.own >= 0 && d.obstacle == u.own ? std::max(d.r2, d.ro2) : d.r2;
+    u.gap = std::min(u.gap, glm::length(u.centre - d.c) - std::sqrt(r2));
+}
+
+// Form factor of the uncovered cells (the elementary form factor at each centre).
+double ContourIntegrator::Lattice::uncoveredFormFactor() const {
+    const double area = light.area() / (double(N) * N);
+    double sum = 0.0;
+    for (const Uncovered& u : scratch.mUncovered) {
+        const Vec3 d = u.centre - rec.point;
+        const double r2 = glm::dot(d, d);
+        const double cosR = glm::dot(d, rec.normal) / std::sqrt(r2);
+        const double cosL = -glm::dot(d, lightNormal) / std::sqrt(r2);
+        sum += std::max(0.0, cosR) * std::abs(cosL) / (kPi * r2) * area * u.size * u.size;
+    }
+    return sum;
+}
+
+// What stays uncovered when coverage stops, for the error bound: each remaining cell is
+// cut down to single lattice units against every disc and band near it, so that the bound
+// counts the slivers between discs rather than whole cells.
+double ContourIntegrator::Lattice::finalUncoveredFormFactor() {
+    std::vector<Uncovered> coarse;
+    coarse.swap(scratch.mUncovered);
+    for (const Uncovered& u : coarse) {
+        const int a0 = static_cast<int>(u.a0), b0 = static_cast<int>(u.b0), s = static_cast<int>(u.size);
+        gatherNear(a0, b0, s);
+        uncoveredCells(u.a0, u.b0, u.size, 1.0, -1);
+    }
+    return uncoveredFormFactor();
+}
+
+// Gathers the discs and contour segments that may matter for the leaf square (x0, y0, s).
+void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
+    const Vec3 centre = light.point((x0 + 0.5 * s) / N, (y0 + 0.5 * s) / N);
+    const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
+                                       glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
+    scratch.mDiscs.clear();
+    for (uint32_t idx : scratch.mTraced) {
+        const Certificate& c = scratch.mCert[idx];
+        const Vec3 p = pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))});
+        if (glm::length(p - centre) >= std::max(c.radius, c.radiusOthers) + half) continue;
+        scratch.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
+    }
+    scratch.mNearSegs.clear();
+    for (const Segment& g : scratch.mSegs)
+        if (distanceToSegment(centre, g) < g.width + half) scratch.mNearSegs.push_back(g);
+}
+
+// The lattice point where coverage wants its next ray: the centre (or a corner not yet
+// traced) of the uncovered cell of 2 units farthest from what discs and contour bands
+// prove. False when every uncovered point is within coverageGap x epsilon (epsilon: the
+// final dichotomy interval) of proven ground, so that no shadow or window holding a disc of
+// that radius can hide there, or when `giveUp` (uncoveredFormFactor() then tells what stays
+// uncovered). The scan of a pass's leaves is updated incrementally as rays are added.
+bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool giveUp) {
+    auto& cells = scratch.mUncovered;
+    if (mScanned == 0) {
+        // A new pass: scan the leaves.
+        cells.clear();
+        for (const Leaf& leaf : scratch.mLeaves) {
+            gatherNear(leaf.x0, leaf.y0, leaf.s);
+            int own = -1;
+            for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
+                const int o = scratch.mSegs[i].own;
+                own = i == leaf.seg0 || o == own ? o : -1;
+            }
+            uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell, own);
+        }
+        mScanned = scratch.mTraced.size();
+    } else {
+        // Only the discs traced since: drop the cells they cover, narrow the others' gaps.
+        for (size_t t = mScanned; t < scratch.mTraced.size(); ++t) {
+            const uint32_t idx = scratch.mTraced[t];
+            const Certificate& c = scratch.mCert[idx];
+            const Disc d{pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))}),
+                         c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle};
+            scratch.mDiscs.assign(1, d);
+            size_t kept = 0;
+            for (Uncovered& u : cells) {
+                if (cellInDisc(u.a0, u.b0, u.size, -1) ||
+                    (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own)))
+                    continue;
+                gapTo(u, d);
+                cells[kept++] = u;
+            }
+            cells.resize(kept);
+        }
+        mScanned = scratch.mTraced.size();
+    }
+    // A cell of side s is done when every centre of its cells of kCoverageCell units is
+    // near proven ground: its own centre's gap plus the distance to the farthest of them.
+    auto reach = [&](double size) { return kHalfSqrt2 * (size - kCoverageCell) * unit; };
+    const double enough = self.mSettings.coverageGap * epsWorld;
+    for (;;) {
+        size_t far = cells.size();
+        for (size_t i = 0; i < cells.size(); ++i)
+            if (cells[i].exhausted) continue;
+            else if (far == cells.size() || cells[i].gap + reach(cells[i].size) > cells[far].gap + reach(cells[far].size))
+                far = i;
+        if (giveUp || far == cells.size() || cells[far].gap + reach(cells[far].size) < enough) return false;
+        const Uncovered u = cells[far];
+        if (u.gap < enough && u.size > kCoverageCell) {
+            // Its centre is near proven ground, a farther part of it may not be: look at
+            // its quarters instead (with every disc and band near it).
+            cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
+            gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
+            const double h = 0.5 * u.size;
+            for (int q = 0; q < 4; ++q)
+                uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h, -1);
+            continue;
+        }
+        const int ia = static_cast<int>(u.a0), ib = static_cast<int>(u.b0);
+        const int h = static_cast<int>(u.size) / 2;
+        const LatticePoint cand[5] = {{ia + h, ib + h}, {ia, ib}, {ia + 2 * h, ib}, {ia + 2 * h, ib + 2 * h}, {ia, ib + 2 * h}};
+        for (const LatticePoint& q : cand) {
+            if (!traced(q)) {
+                out = q;
+                return true;
+            }
+        }
+        if (u.size <= kCoverageCell) {
+            // Nothing finer to ask here (it still counts in uncoveredFormFactor()).
+            cells[far].exhausted = true;
+            continue;
+        }
+        // Every candidate traced and still uncovered: its quarters.
+        cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
+        gatherNear(ia, ib, static_cast<int>(u.size));
+        for (int q = 0; q < 4; ++q)
+            uncoveredCells(u.a0 + (q & 1) * 0.5 * u.size, u.b0 + (q >> 1) * 0.5 * u.size, 0.5 * u.size, 0.5 * u.size, -1);
+    }
+}
+
+// Whether a traced coverage sample lies in the square (x0, y0, s), corners excluded, with
+// another answer than the square's uniform one (visible: 1, hidden: 0; -1: any answer).
+bool ContourIntegrator::Lattice::markedInside(int x0, int y0, int s, int uniform) const {
+    for (uint32_t idx : scratch.mMarked) {
+        const int a = static_cast<int>(idx % (N + 1)), b = static_cast<int>(idx / (N + 1));
+        if (a < x0 || a > x0 + s || b < y0 || b > y0 + s) continue;
+        if ((a == x0 || a == x0 + s) && (b == y0 || b == y0 + s)) continue;
+        if (uniform < 0 || (scratch.mSample[idx] == kVisible) != (uniform == 1)) return true;
+    }
+    return false;
+}
+
+// Whether a traced sample disagrees with a leaf that holds it (inside or on its border),
+// farther than epsilon from that leaf's contour: a shadow or window the pass stepped over
+// (say, two crossings of one side found from two squares of different sizes).
+bool ContourIntegrator::Lattice::contradicts(uint32_t idx) const {
+    const LatticePoint q{static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))};
+    const float sv = scratch.mSample[idx];
+    if (sv == kBelowHorizon) return false;
+    const int answer = sv == kVisible ? 1 : 0;
+    for (const Leaf& leaf : scratch.mLeaves) {
+        if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
+            continue;
+        if (leaf.type != 2) {
+            if (leaf.type != answer) return true;
+            continue;
+        }
+        const Vec3 p = pointOf(q);
+        double best;
+        const int side = nearestSide(leaf, p, best);
+        if (side != answer && best > epsWorld) return true;
+        // On the leaf's own border a vertex that the sample contradicts was placed before
+        // the sample was traced (a neighbour's dichotomy): the next pass narrows it.
+        const bool onBorder = q.a == leaf.x0 || q.a == leaf.x0 + leaf.s || q.b == leaf.y0 ||
+                              q.b == leaf.y0 + leaf.s;
+        if (onBorder && side != answer && best > 1e-9 * unit && self.mSettings.distanceGuided) return true;
+    }
+    return false;
+}
+
+// The side of a contour square's nearest segment a light point lies on (visible, 1, on the
+// left in (u, v)), and its distance to it.
+int ContourIntegrator::Lattice::nearestSide(const Leaf& leaf, const Vec3& p, double& best) const {
+    best = std::numeric_limits<double>::infinity();
+    int side = 1;
+    bool onBorder = false;
+    for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
+        const Segment& g = scratch.mSegs[i];
+        const double dist = distanceToSegment(p, g);
+        if (dist < best) {
+            best = dist;
+            side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
+            onBorder = g.border;
+        }
+    }
+    // Nearest to the (exact) border of what emits: the point's own position decides.
+    if (onBorder) side = emits(p) ? 1 : 0;
+    return side;
+}
+
+// What the current contour says about a light point: visible (1) or hidden (0).
+int ContourIntegrator::Lattice::predicted(LatticePoint q) const {
+    for (const Leaf& leaf : scratch.mLeaves) {
+        if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
+            continue;
+        if (leaf.type != 2) return leaf.type;
+        // A contour square: the side of the nearest segment (visible on the left in (u, v)).
+        double best;
+        return nearestSide(leaf, pointOf(q), best);
+    }
+    return 1;
+}
+
+// What a piece may miss where two silhouettes meet in the square (or a silhouette meets a
+// polygon or disc light's border), at a corner one check point seldom lands on: a share of the
+// square's own form factor, added to the piece's change. Zero for a piece of one silhouette.
+double ContourIntegrator::Lattice::junctionAllowance(const Vertex& a, const Vertex& b,
+                                                     const LatticePoint c[4]) const {
+    const bool twoSilhouettes = a.obstacle != b.obstacle && a.obstacle != kHorizonContour &&
+                                b.obstacle != kHorizonContour;
+    const bool silhouetteAndBorder = shaped && (a.clip >= 0) != (b.clip >= 0);
+    if (!twoSilhouettes && !silhouetteAndBorder) return 0.0;
+    const Vec3 q0 = pointOf(c[0]), q1 = pointOf(c[1]), q2 = pointOf(c[2]), q3 = pointOf(c[3]);
+    constexpr double kJunction = 0.05;  // measured on random sphere scenes
+    return kJunction * std::abs(edgeF(q0, q1) + edgeF(q1, q2) + edgeF(q2, q3) + edgeF(q3, q0));
+}
+
+// Records a closed contour square for coverage: its pieces as segments (each piece: its ends and
+// its middle) with the obstacle it belongs to when both ends agree (the horizon belongs to
+// none), the band around them where only that obstacle's discs need to exclude the others, the
+// leaf itself, and what each piece leaves open in the error bound.
+void ContourIntegrator::Lattice::recordContourLeaf(int x0, int y0, int s, const Vertex x[4],
+                                                   const Piece pieces[2], int nPieces) {
+    const uint32_t seg0 = static_cast<uint32_t>(scratch.mSegs.size());
+    // Half a first-level square (at this pass's level) on either side: a refined square's
+    // contour keeps its first-level square's band.
+    const double band = 0.5 * double(2 << (n - passLevel)) * unit;
+    for (int q = 0; q < nPieces; ++q) {
+        const Piece& pc = pieces[q];
+        const Vertex& a = x[pc.exitSide];
+        const Vertex& b = x[pc.entrySide];
+        Vec3 mid = 0.5 * (a.c + b.c);
+        if (pc.border) {
+            // The border itself: exact, so a sample near it is what it says (points outside
+            // emit nothing, points inside are visible unless a silhouette says otherwise, and
+            // those have their own segments).
+            scratch.mSegs.push_back({a.c, b.c, band, -1, true});
+            continue;
+        }
+        if (pc.arcOk && !pc.arc.straight) {
+            const double w = pc.arc.w;
+            mid = std::isfinite(w) ? (0.25 * a.c + 0.5 * w * pc.arc.k + 0.25 * b.c) / (0.5 + 0.5 * w)
+                                   : pc.arc.k;
+        } else if (!pc.arcOk) {
+            mid = pc.z.c;
+        }
+        int own = a.obstacle;
+        if (own == kHorizonContour) own = b.obstacle;
+        if (b.obstacle != own && b.obstacle != kHorizonContour) own = -1;
+        scratch.mSegs.push_back({a.c, mid, band, own});
+        scratch.mSegs.push_back({mid, b.c, band, own});
+    }
+    scratch.mLeaves.push_back({x0, y0, s, 2, seg0, static_cast<uint32_t>(scratch.mSegs.size())});
+    // What each piece's data leave open: the strip of the vertices' uncertainty, and for a
+    // tangent arc the part of its tangent triangle the arc may miss (two thirds without a
+    // shoulder ray, a quarter with one), for a checked piece half the change that the check
+    // measured.
+    for (int q = 0; q < nPieces; ++q) {
+        const Piece& pc = pieces[q];
+        if (pc.border) continue;  // exact
+        const Vertex& a = x[pc.exitSide];
+        const Vertex& b = x[pc.entrySide];
+        double e = 0.25 * stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
+        if (pc.arcOk && !pc.arc.straight) {
+            const Vec3& k = pc.arc.k;
+            const double tri = std::abs(edgeF(a.c, k) + edgeF(k, b.c) + edgeF(b.c, a.c));
+            e += (pc.arc.probed ? 0.25 : 2.0 / 3.0) * tri;
+        } else if (!pc.arcOk) {
+            e += 0.5 * std::abs(edgeF(a.c, pc.z.c) + edgeF(pc.z.c, b.c) - edgeF(a.c, b.c));
+        }
+        bound += e;
+    }
+}
+
+}  // namespace penumbra

@@ -1,0 +1,288 @@
+/// @file contour_lattice.h
+/// Private to the contour integrator: the state of one evaluation (the sample lattice, the
+/// running contour sums, coverage's bookkeeping) and the per-sample and per-evaluation data.
+/// Lattice's members are defined by idea, one source file each:
+///
+///   contour_integrator.cpp  the public class; the lattice's samples and their rays
+///   contour_squares.cpp     Vedel's sections 3.1-3.2: passes over the first-level grid,
+///                           marching squares with centre rays for saddles, dichotomy on the
+///                           shared lattice, the check point and refinement, restarts
+///   contour_tangent.cpp     distance-guided dichotomy, Newton placement of vertices, arcs
+///                           tangent to the silhouette (the default tangent mode)
+///   contour_coverage.cpp    certified coverage: discs, uncovered cells, contradictions, the
+///                           error bound, and the one ray that can cover the whole light
+///   contour_border.cpp      what emits: the receiver's horizon, a polygon light's cutting
+///                           edges and a disc light's circle, walked exactly
+///
+/// Included only by those files (it brings the names of namespace `aci` into `penumbra`).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "penumbra/contour_integrator.h"
+
+namespace penumbra {
+namespace aci {
+
+// What a sample's ray measured of the nearest surface (tangent mode): the distance gradient
+// at its closest approach, where that is along the ray, and which obstacle.
+struct RayGeometry {
+    float normal[3] = {0.0f, 0.0f, 0.0f};  // 0: unknown
+    float closest = 0.0f;                  // fraction of the ray; 0: unknown
+    float obstacle = -1.0f;                // the obstacle's index; -1: unknown
+    float stale = 0.0f;                    // 1: an earlier receiver point's ray (reuseCorners)
+};
+
+// One traced ray as a lattice sample keeps it, and as reuseCorners keeps a first-level one.
+struct Corner {
+    Vec3 origin{0.0};
+    double bound = 0.0;  // Clearance::bound of the ray (0: cannot be reused)
+    float sample = 0.0f, clear = 0.0f;
+    RayGeometry geometry;
+    Certificate cert;  // with AciSettings::coverage
+    // Whether this ray's answer holds for a ray from `from` to the same light point.
+    bool answers(const Vec3& from) const {
+        return bound != 0.0 && glm::length(from - origin) < std::abs(bound);
+    }
+};
+
+struct Disc {
+    Vec3 c;        // centre on the light
+    double r2;     // squared radius of the full certificate
+    double ro2;    // squared radius that excludes every obstacle but `obstacle`
+    int obstacle;  // Certificate::obstacle
+};
+struct Segment {  // a piece of located contour and the band around it
+    Vec3 a, b;
+    double width;
+    int own;  // its obstacle, -1 unknown or mixed
+    bool border = false;  // on the border of what emits (exact: nothing to prove near it)
+};
+struct Leaf {  // a square closed by the last pass
+    int x0, y0, s;
+    int type;  // 0 hidden, 1 visible, 2 contour (segments seg0 .. seg1)
+    uint32_t seg0, seg1;
+};
+struct Uncovered {  // a cell of the light no disc or band proves yet
+    double a0, b0, size;  // lattice coordinates
+    double gap;           // its centre's distance to the nearest disc that would prove it
+    int own;              // the obstacle of the contour band it is in, -1 none
+    Vec3 centre;
+    bool exhausted = false;  // every lattice point coverage may ask in it is traced
+};
+
+constexpr float kVisible = -1.0f;
+constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
+constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
+constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
+// Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
+// within half an interval of its every point and the stopping rule on centres (every uncovered
+// point within coverageGap intervals of proven ground) holds for points. With cells of 8 units a
+// shadow of 1.8 intervals' radius could hide between centres (seed 17 of the random sphere scenes).
+constexpr double kCoverageCell = 2.0;
+constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
+constexpr double kHalfSqrt2 = 0.7071067811865476;
+
+struct LatticePoint {
+    int a, b;
+};
+
+inline LatticePoint midpoint(LatticePoint p, LatticePoint q) { return {(p.a + q.a) / 2, (p.b + q.b) / 2}; }
+
+// A contour vertex: C on the light, I on the obstacle along the same ray from M (Fig. 5).
+struct Vertex {
+    Vec3 c;
+    Vec3 i;
+    Vec3 plane{0.0};  // tangentContour: unit normal of the grazing plane through M (0 unknown)
+    int obstacle = -1;  // tangentContour: the obstacle whose silhouette it is on (-1 unknown)
+    int clip = -1;      // on the border of what emits (kClipHorizon, kClipDisc, or a cut's index)
+};
+
+constexpr int kClipHorizon = 1000;  // Vertex::clip: the receiver's horizon line
+constexpr int kClipDisc = 1001;     // Vertex::clip: a disc light's circle
+
+}  // namespace aci
+
+using namespace aci;  // NOLINT(google-build-using-namespace): a private header of five files
+
+struct ContourIntegrator::Scratch {
+    std::vector<Corner> mCorners;  // (p+1)^2 for mCornerGrid and mCornerLight; empty: none
+    int mCornerGrid = 0;
+    RectLight mCornerLight;
+    Corner* reusableCorner(const RectLight& light, int grid, int i, int j);
+    std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
+    std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
+    std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
+    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet
+    std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
+    std::vector<Certificate> mCert;  // coverage: each sample's certificate
+    std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
+    std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
+    std::vector<Segment> mSegs;      // coverage: the last pass's contour segments
+    std::vector<Segment> mNearSegs;  // coverage scratch: segments near one leaf
+    std::vector<Leaf> mLeaves;       // coverage: the last pass's leaves
+    std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
+    std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
+    std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
+    uint32_t mGeneration = 0;
+};
+
+// One evaluation at one receiver point: the sample lattice and the running contour sums.
+//
+// The lattice has N = p * 2^(n+1) units per light edge, so that a first-level square has side
+// 2^(n+1) units and a dichotomy of n steps ends on an interval of 2 units: its midpoint, the
+// contour vertex, and every centre and semi-diagonal point are lattice points too. A square of
+// side 2^(k+1) gets k dichotomy steps; refinement and restarts both lower k by one.
+struct ContourIntegrator::Lattice {
+    ContourIntegrator& self;
+    Scratch& scratch;
+    const Receiver& rec;
+    const RectLight& light;
+    Occluder::Query& query;
+    int p, n, N;
+    Vec3 origin;
+    Vec3 lightNormal;
+    double epsWorld;  // world length of the final dichotomy interval (the strip width)
+    double want;      // coverage: the radius that covers the whole light from any of its points
+    double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
+    double unit;         // world length of one lattice unit (averaged over the two edges)
+    // What emits: the frame above the horizon, inside a polygon light's cutting edges and a disc
+    // light's circle. Points outside are hidden without a ray (kBelowHorizon).
+    std::vector<LightEdge> cuts;
+    bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
+    size_t mScanned = 0;  // coverage: traced rays already in scratch.mUncovered (0: scan anew)
+    bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
+    int passLevel = 0;         // the restart level of the current pass
+    bool remark = false;       // coverage: the pass marked new samples and must run again
+    AciCounts counts;
+    Vec3 g{0.0};
+    Mat3 dg{0.0};
+
+    // ----- Samples: one ray per lattice point and evaluation (contour_integrator.cpp) -----
+    Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l, Occluder::Query& q,
+            int grid, int steps);
+    float& sample(LatticePoint q, bool firstLevel);
+    size_t settle(LatticePoint q) const;
+
+    Vec3 pointOf(LatticePoint q) const {
+        return light.point(double(q.a) / N, double(q.b) / N);
+    }
+    bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
+    float peek(LatticePoint q) const {
+        return scratch.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
+    }
+    bool traced(LatticePoint q) const {
+        return scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] == scratch.mGeneration;
+    }
+    // The form factor of the contour edge a -> b (Lambert's term, seen from the receiver).
+    double edgeF(const Vec3& a, const Vec3& b) const {
+        return glm::dot(edgeG(a - rec.point, b - rec.point), rec.normal) / (2.0 * kPi);
+    }
+    // Narrows the bracket lo -> hi (visible, hidden; positions of `at`) with samples traced
+    // between them for other reasons: free information a vertex must agree with.
+    template <class At>
+    void narrowByTraced(const At& at, int& lo, int& hi) const {
+        for (int j = lo + 1; j < hi; ++j) {
+            if (!traced(at(j))) continue;
+            if (peek(at(j)) == kVisible) {
+                lo = j;
+            } else {
+                hi = j;
+                break;
+            }
+        }
+    }
+
+    // A tangent-mode contour piece: the conic arc tangent to both ends' silhouettes, which
+    // meet at k (contour_tangent.cpp, tangentArc).
+    struct Arc {
+        Vec3 k{0.0};
+        double w = 1.0;
+        bool straight = false;
+        bool probed = false;  // its weight was placed by a shoulder ray
+    };
+
+    // One contour piece of a square (section 3.1): from the crossing where the contour leaves the
+    // visible part (walking counterclockwise) to where it comes back, cutting off one corner
+    // through which its check runs (checkVis -> checkHid, checkSteps dichotomy steps).
+    struct Piece {
+        int exitSide, entrySide;  // the sides (0-3, side i from corner i to i+1) it crosses
+        LatticePoint checkVis, checkHid;
+        int checkSteps;
+        bool midline = false;  // checked on the square's midline (AciSettings::midlineCheck)
+        bool border = false;   // along the border of what emits: exact, no check
+        bool arcOk = false;    // `arc` stands for it (tangent mode)
+        Arc arc;
+        Vertex z;  // its check point (section 3.2), when neither border nor arc
+    };
+
+    // ----- Section 3: passes, squares, dichotomy, checks (contour_squares.cpp) -----
+    bool pass(int r);
+    bool square(int x0, int y0, int k, double thr, int depth);
+    int contourPieces(int x0, int y0, int k, const LatticePoint c[4], const bool v[4],
+                      Piece pieces[2]);
+    void emitPiece(const Vertex& a, const Vertex& b, const Piece& pc);
+    void emitFrameBorder(const LatticePoint c[4], const bool v[4], const Vertex x[4],
+                         const bool onBorder[4]);
+    bool split(int x0, int y0, int k, double thr, int depth, const bool v[4], const bool onBorder[4]);
+    Vertex crossing(LatticePoint vis, LatticePoint hid, int steps);
+    const Vertex* knownCrossing(LatticePoint vis, LatticePoint hid) const;
+    Vertex crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
+                             LatticePoint& finalHid);
+    Vertex vertexBetween(LatticePoint vis, LatticePoint hid, double f);
+    void emit(const Vec3& a, const Vec3& b, double weight = 1.0);
+    struct KnownCrossing {
+        LatticePoint vis, hid;  // its final bracket
+        Vertex v;
+    };
+    std::vector<KnownCrossing> crossings;  // distance-guided modes: crossings of lattice lines
+
+    // ----- Distance-guided and tangent geometry (contour_tangent.cpp) -----
+    float clearanceOf(LatticePoint q) const;
+    Vec3 normalOf(LatticePoint q) const;
+    double closestFractionOf(LatticePoint q) const;
+    bool staleOf(LatticePoint q) const;
+    int obstacleOf(LatticePoint q) const;
+    double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
+    Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
+    Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
+                          LatticePoint& finalHid);
+    bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc);
+    void emitArc(const Vertex& a, const Vertex& b, const Arc& arc);
+
+    // ----- Coverage and the error bound (contour_coverage.cpp) -----
+    bool wholeLight();
+    double squareFormFactor(int x0, int y0, int s) const;
+    bool cellInDisc(double a0, double b0, double size, int own) const;
+    bool cellOutside(double a0, double b0, double size) const;
+    static double distanceToSegment(const Vec3& p, const Segment& g);
+    int bandOwner(const Vec3& centre, double halfDiag) const;
+    void uncoveredCells(double a0, double b0, double size, double minSize, int leafOwn) const;
+    static void gapTo(Uncovered& u, const Disc& d);
+    double uncoveredFormFactor() const;
+    double finalUncoveredFormFactor();
+    void gatherNear(int x0, int y0, int s);
+    bool nextCoverageSample(LatticePoint& out, bool giveUp);
+    bool markedInside(int x0, int y0, int s, int uniform) const;
+    bool contradicts(uint32_t idx) const;
+    int nearestSide(const Leaf& leaf, const Vec3& p, double& best) const;
+    int predicted(LatticePoint q) const;
+    double junctionAllowance(const Vertex& a, const Vertex& b, const LatticePoint c[4]) const;
+    void recordContourLeaf(int x0, int y0, int s, const Vertex x[4], const Piece pieces[2],
+                           int nPieces);
+
+    // ----- What emits (contour_border.cpp) -----
+    // Height of a light point above the receiver's tangent plane.
+    double above(const Vec3& p) const { return glm::dot(p - rec.point, rec.normal); }
+    double cutValue(size_t i, const Vec3& p) const { return glm::dot(p - cuts[i].origin, cuts[i].inward); }
+    bool emits(const Vec3& p) const;
+    Vec3 inwardAt(int clip, const Vec3& p) const;
+    double borderCrossing(const Vec3& pv, const Vec3& ph, int& clip) const;
+    bool emitBorder(const Vertex& a, const Vertex& b, bool dryRun, double& length);
+    bool alongBorder(const Vertex& a, const Vertex& b, int s);
+};
+
+}  // namespace penumbra

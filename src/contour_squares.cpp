@@ -1,0 +1,393 @@
+// Vedel (1993), sections 3.1 and 3.2: one pass over the first-level grid, marching squares with
+// a centre ray for saddles, the contour vertex of a crossed side by dichotomy on the shared
+// lattice, one check point per contour piece and refinement where its change exceeds the strip
+// threshold; an inconsistency restarts the light one level deeper (evaluate()).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "contour_lattice.h"
+
+namespace penumbra {
+
+namespace {
+
+// Case 3 picks either diagonal (Vedel: at random): a hash of the square and the seed, so that
+// the choice is the same on every run and thread.
+uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
+    uint32_t h = seed * 0x9E3779B9u ^ static_cast<uint32_t>(x) * 0x85EBCA6Bu ^
+                 static_cast<uint32_t>(y) * 0xC2B2AE35u ^ static_cast<uint32_t>(s) * 0x27D4EB2Fu;
+    h ^= h >> 15;
+    h *= 0x2C1B3C6Du;
+    h ^= h >> 12;
+    return h;
+}
+
+}  // namespace
+
+// One pass over the light at restart level r; false on an inconsistency.
+bool ContourIntegrator::Lattice::pass(int r) {
+    g = Vec3(0.0);
+    dg = Mat3(0.0);
+    bound = 0.0;
+    passLevel = r;
+    scratch.mLeaves.clear();
+    scratch.mSegs.clear();
+    const int k = n - r;
+    const int s = 2 << k;
+    const int squares = p << r;
+    for (int j = 0; j <= squares; ++j)
+        for (int i = 0; i <= squares; ++i) visible({i * s, j * s}, true);
+    for (int j = 0; j < squares; ++j)
+        for (int i = 0; i < squares; ++i)
+            if (!square(i * s, j * s, k, -1.0, 0)) return false;
+    return true;
+}
+
+// Processes the square with lower-left lattice corner (x0, y0) and side s = 2^(k+1).
+// thr < 0 asks for the threshold to be computed from the square's own contour.
+// Returns false on an inconsistency that needs the whole light one level deeper.
+bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int depth) {
+    const int s = 2 << k;
+    const LatticePoint c[4] = {{x0, y0}, {x0 + s, y0}, {x0 + s, y0 + s}, {x0, y0 + s}};
+    bool v[4];
+    for (int i = 0; i < 4; ++i) v[i] = visible(c[i]);
+    const int nVisible = v[0] + v[1] + v[2] + v[3];
+    const bool onBorder[4] = {y0 == 0, x0 + s == N, y0 + s == N, x0 == 0};
+
+    if (nVisible == 0 || nVisible == 4) {
+        // With coverage: a coverage sample inside that disagrees splits the square (a
+        // shadow or window touching no corner).
+        if (self.mSettings.coverage && k > 0 && markedInside(x0, y0, s, nVisible == 4)) {
+            ++counts.squaresSplitForCoverage;
+            return split(x0, y0, k, thr, depth, v, onBorder);
+        }
+        if (self.mSettings.coverage) scratch.mLeaves.push_back({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
+        if (nVisible == 4)
+            for (int i = 0; i < 4; ++i)
+                if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
+        return true;
+    }
+
+    // Crossings on the sides whose ends differ (side i runs from c[i] to c[i+1]).
+    Vertex x[4];
+    for (int i = 0; i < 4; ++i) {
+        const int j = (i + 1) & 3;
+        if (v[i] != v[j]) x[i] = v[i] ? crossing(c[i], c[j], k) : crossing(c[j], c[i], k);
+    }
+    Piece pieces[2];
+    const int nPieces = contourPieces(x0, y0, k, c, v, pieces);
+
+    // A piece between two points of a polygon or disc light's border (or the horizon) is
+    // that border: exact, no check, when it stays near the square.
+    if (shaped)
+        for (int q = 0; q < nPieces; ++q)
+            pieces[q].border = alongBorder(x[pieces[q].exitSide], x[pieces[q].entrySide], s);
+    // The tangent mode: an arc tangent to both ends' silhouettes, checked by its own rule.
+    if (self.mSettings.tangentContour && self.mSettings.distanceGuided) {
+        for (int q = 0; q < nPieces; ++q) {
+            if (pieces[q].border) continue;
+            const Vertex& a = x[pieces[q].exitSide];
+            const Vertex& b = x[pieces[q].entrySide];
+            const double pieceThr =
+                thr >= 0.0 ? thr
+                           : stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld) *
+                                 self.mSettings.thresholdScale;
+            pieces[q].arcOk = tangentArc(a, b, x0, y0, s, pieceThr, pieces[q].arc);
+        }
+    }
+
+    // Section 3.2: one more contour point per piece; refine where the change exceeds the
+    // form factor of a strip of width epsilon around the piece.
+    double change = 0.0, ownThr = 0.0;
+    for (int q = 0; q < nPieces; ++q) {
+        Piece& pc = pieces[q];
+        const Vertex& a = x[pc.exitSide];
+        const Vertex& b = x[pc.entrySide];
+        if (pc.arcOk || pc.border) continue;
+        if (pc.midline && (!visible(pc.checkVis) || visible(pc.checkHid))) {
+            // A side's middle disagrees with its corners: the contour crosses that side
+            // twice, which only a split square can represent.
+            change = std::numeric_limits<double>::infinity();
+            pc.z = a;
+            continue;
+        }
+        pc.z = crossing(pc.checkVis, pc.checkHid, pc.checkSteps);
+        change += std::abs(edgeF(a.c, pc.z.c) + edgeF(pc.z.c, b.c) - edgeF(a.c, b.c));
+        if (self.mSettings.coverage) change += junctionAllowance(a, b, c);
+        ownThr += stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
+    }
+    if (thr < 0.0) thr = ownThr * self.mSettings.thresholdScale;
+
+    if (self.mSettings.refine && k > 0 && change > thr) {
+        ++counts.squaresRefined;
+        return split(x0, y0, k, thr, depth, v, onBorder);
+    }
+
+    if (self.mSettings.coverage) {
+        if (k > 0 && markedInside(x0, y0, s, -1)) {
+            ++counts.squaresSplitForCoverage;
+            return split(x0, y0, k, thr, depth, v, onBorder);
+        }
+        recordContourLeaf(x0, y0, s, x, pieces, nPieces);
+    }
+
+    for (int q = 0; q < nPieces; ++q) emitPiece(x[pieces[q].exitSide], x[pieces[q].entrySide], pieces[q]);
+    emitFrameBorder(c, v, x, onBorder);
+    return true;
+}
+
+// Marching squares (section 3.1): the contour pieces of a square with mixed corners, each from
+// an exit crossing (visible -> hidden walking counterclockwise) to an entry crossing, so that
+// the visible part is on the left in (u, v). Each piece cuts off one corner, through which its
+// check diagonal runs. A saddle (case 4) asks the square's centre. Returns the piece count.
+int ContourIntegrator::Lattice::contourPieces(int x0, int y0, int k, const LatticePoint c[4],
+                                              const bool v[4], Piece pieces[2]) {
+    const int s = 2 << k;
+    const int nVisible = v[0] + v[1] + v[2] + v[3];
+    int nPieces = 0;
+    const LatticePoint mu{x0 + s / 2, y0 + s / 2};
+    const bool saddle = v[0] == v[2] && v[1] == v[3];
+    if (saddle) {
+        const bool muVisible = visible(mu);  // case 4: the centre ray decides
+        for (int i = 0; i < 4; ++i) {
+            if (!(v[i] && !v[(i + 1) & 3])) continue;  // exit on side i
+            // Centre visible: the hidden corner c[i+1] is cut off, the entry is on side i+1.
+            // Centre hidden: the visible corner c[i] is isolated, the entry is on side i-1.
+            const int cut = muVisible ? (i + 1) & 3 : i;
+            const int entry = muVisible ? (i + 1) & 3 : (i + 3) & 3;
+            Piece& pc = pieces[nPieces++];
+            pc.exitSide = i;
+            pc.entrySide = entry;
+            pc.checkVis = muVisible ? mu : c[cut];
+            pc.checkHid = muVisible ? c[cut] : mu;
+            pc.checkSteps = k > 0 ? k - 1 : 0;
+        }
+        return nPieces;
+    }
+    int exitSide = -1, entrySide = -1;
+    for (int i = 0; i < 4; ++i) {
+        const int j = (i + 1) & 3;
+        if (v[i] && !v[j]) exitSide = i;
+        if (!v[i] && v[j]) entrySide = i;
+    }
+    Piece& pc = pieces[nPieces++];
+    pc.exitSide = exitSide;
+    pc.entrySide = entrySide;
+    pc.checkSteps = k;
+    if (nVisible != 2) {
+        // Case 2: the diagonal through the odd corner.
+        const bool odd = nVisible == 1;  // the odd corner is the one with v == odd
+        int corner = 0;
+        while (v[corner] != odd) ++corner;
+        const int opposite = (corner + 2) & 3;
+        pc.checkVis = v[corner] ? c[corner] : c[opposite];
+        pc.checkHid = v[corner] ? c[opposite] : c[corner];
+    } else if (self.mSettings.midlineCheck) {
+        // The contour crosses two opposite sides; check it on the square's midline between
+        // the other two sides' midpoints, half-way along the chord.
+        const int sa = (exitSide + 1) & 3, sb = (exitSide + 3) & 3;
+        const LatticePoint ma = midpoint(c[sa], c[(sa + 1) & 3]);
+        const LatticePoint mb = midpoint(c[sb], c[(sb + 1) & 3]);
+        pc.checkVis = v[sa] ? ma : mb;
+        pc.checkHid = v[sa] ? mb : ma;
+        pc.midline = true;
+    } else {
+        // Case 3: either diagonal, chosen by a hash of the square (Vedel: at random).
+        const int d = hashSquare(x0, y0, s, self.mSettings.seed) & 1;
+        pc.checkVis = v[d] ? c[d] : c[d + 2];
+        pc.checkHid = v[d] ? c[d + 2] : c[d];
+    }
+    return nPieces;
+}
+
+// Adds a closed piece to the contour integral: the border it runs along, its tangent arc, or
+// the polygon through its check point (with curvedContour, the parabola through it).
+void ContourIntegrator::Lattice::emitPiece(const Vertex& a, const Vertex& b, const Piece& pc) {
+    if (pc.border) {
+        double length = 0.0;
+        emitBorder(a, b, false, length);
+    } else if (pc.arcOk) {
+        emitArc(a, b, pc.arc);
+    } else if (self.mSettings.curvedContour) {
+        // Treat X, Z, Y as points of a parabolic arc: the area between the arc and its
+        // chord is the triangle XZY divided by 3 s (1 - s), s being Z's position along
+        // the chord (Archimedes: 4/3 of the triangle when Z is the apex, s = 1/2).
+        const Vec3 chord = b.c - a.c;
+        const double len2 = glm::dot(chord, chord);
+        double sz = len2 > 0.0 ? glm::dot(pc.z.c - a.c, chord) / len2 : 0.5;
+        sz = std::clamp(sz, 0.15, 0.85);
+        const double w = 1.0 / (3.0 * sz * (1.0 - sz));
+        emit(a.i, pc.z.i, w);
+        emit(pc.z.i, b.i, w);
+        emit(a.i, b.i, 1.0 - w);
+    } else {
+        emit(a.i, pc.z.i);
+        emit(pc.z.i, b.i);
+    }
+}
+
+// The visible parts of the light's frame border in the square, joined to the contour by
+// radial junction edges C -> I (zero for the form factor, not for its gradient: Fig. 5).
+void ContourIntegrator::Lattice::emitFrameBorder(const LatticePoint c[4], const bool v[4],
+                                                 const Vertex x[4], const bool onBorder[4]) {
+    for (int i = 0; i < 4; ++i) {
+        if (!onBorder[i]) continue;
+        const int j = (i + 1) & 3;
+        if (v[i] && v[j]) {
+            emit(pointOf(c[i]), pointOf(c[j]));
+        } else if (v[i]) {
+            emit(pointOf(c[i]), x[i].c);
+            emit(x[i].c, x[i].i);
+        } else if (v[j]) {
+            emit(x[i].i, x[i].c);
+            emit(x[i].c, pointOf(c[j]));
+        }
+    }
+}
+
+// Splits the square into four like a refinement (section 3.2); false on an inconsistency.
+bool ContourIntegrator::Lattice::split(int x0, int y0, int k, double thr, int depth,
+                                       const bool v[4], const bool onBorder[4]) {
+    const int s = 2 << k;
+    const LatticePoint c[4] = {{x0, y0}, {x0 + s, y0}, {x0 + s, y0 + s}, {x0, y0 + s}};
+    counts.maxDepth = std::max(counts.maxDepth, depth + 1);
+    // New samples at the middle of each side: a side whose ends agree but whose middle
+    // differs means the neighbouring square was treated wrongly (unless the side is on
+    // the light's border): restart one level deeper.
+    for (int i = 0; i < 4; ++i) {
+        const int j = (i + 1) & 3;
+        if (v[i] == v[j] && visible(midpoint(c[i], c[j])) != v[i] && !onBorder[i]) {
+            // With coverage, restarts stop after the first: deeper, the sample is marked
+            // and another pass at the same level splits the neighbour holding it on its side
+            // (markedInside), which bounds the work of a cascade of inconsistencies.
+            if (!self.mSettings.coverage || passLevel == 0) return false;
+            const LatticePoint m = midpoint(c[i], c[j]);
+            const uint32_t idx = static_cast<uint32_t>(static_cast<size_t>(m.b) * (N + 1) + m.a);
+            if (std::find(scratch.mMarked.begin(), scratch.mMarked.end(), idx) == scratch.mMarked.end()) {
+                scratch.mMarked.push_back(idx);
+                remark = true;
+            }
+        }
+    }
+    const int h = s / 2;
+    for (int sy = 0; sy < 2; ++sy)
+        for (int sx = 0; sx < 2; ++sx)
+            if (!square(x0 + sx * h, y0 + sy * h, k - 1, thr < 0.0 ? thr : 0.5 * thr,
+                        depth + 1))
+                return false;
+    return true;
+}
+
+// The contour vertex between a visible and a hidden lattice point, by dichotomy (section
+// 3.1): the middle of the final interval, or the exact crossing of the border when the
+// hidden end emits nothing (below the horizon, off a polygon or disc light). With
+// distanceGuided, samples go where the ends' signed clearances put the silhouette (still
+// lattice points, still narrowing to one final interval) and the vertex is interpolated
+// inside that interval (crossingOnSegment, crossingNewton). In the distance-guided modes where a dichotomy stops depends on the side's length, so
+// two squares of different sizes sharing part of a side (a T-junction) would place their
+// vertices differently and leave a gap in the contour: a crossing of a light-lattice line
+// is therefore kept with its final bracket, and any later side holding that bracket (the
+// same way round) takes the same vertex.
+Vertex ContourIntegrator::Lattice::crossing(LatticePoint vis, LatticePoint hid, int steps) {
+    const bool onLine = self.mSettings.distanceGuided && (vis.a == hid.a || vis.b == hid.b);
+    if (onLine) {
+        if (const Vertex* known = knownCrossing(vis, hid)) return *known;
+    }
+    LatticePoint fv = vis, fh = hid;
+    Vertex v = crossingOnSegment(vis, hid, steps, fv, fh);
+    if (onLine) crossings.push_back({fv, fh, v});
+    return v;
+}
+
+// A crossing found earlier whose final bracket lies on the segment vis -> hid, oriented
+// the same way.
+const Vertex* ContourIntegrator::Lattice::knownCrossing(LatticePoint vis, LatticePoint hid) const {
+    const bool horizontal = vis.b == hid.b;
+    const int line = horizontal ? vis.b : vis.a;
+    const int v0 = horizontal ? vis.a : vis.b, h0 = horizontal ? hid.a : hid.b;
+    const int lo = std::min(v0, h0), hi = std::max(v0, h0);
+    for (const KnownCrossing& k : crossings) {
+        const bool kh = k.vis.b == k.hid.b;
+        if (kh != horizontal || (kh ? k.vis.b : k.vis.a) != line) continue;
+        const int kv = kh ? k.vis.a : k.vis.b, kd = kh ? k.hid.a : k.hid.b;
+        if (std::min(kv, kd) < lo || std::max(kv, kd) > hi) continue;
+        if ((kv < kd) != (v0 < h0)) continue;
+        // Stale when a sample traced since lies inside its bracket.
+        const int step = kv < kd ? 1 : -1;
+        bool stale = false;
+        for (int j = kv + step; j != kd && !stale; j += step)
+            stale = traced(kh ? LatticePoint{j, line} : LatticePoint{line, j});
+        if (stale) continue;
+        return &k.v;
+    }
+    return nullptr;
+}
+
+Vertex ContourIntegrator::Lattice::crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps,
+                                                     LatticePoint& finalVis,
+                                                     LatticePoint& finalHid) {
+    if (self.mSettings.tangentContour && self.mSettings.distanceGuided && steps > 0)
+        return crossingNewton(vis, hid, steps, finalVis, finalHid);
+    if (!self.mSettings.distanceGuided) {
+        for (int i = 0; i < steps; ++i) {
+            const LatticePoint m = midpoint(vis, hid);
+            (visible(m) ? vis : hid) = m;
+        }
+        return vertexBetween(vis, hid, 0.5);
+    }
+    // Positions j = 0 .. 2^steps along vis -> hid, one final interval apart.
+    const int count = 1 << steps;
+    const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
+    auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
+    int lo = 0, hi = count, slow = 0, probes = 0;
+    const int maxProbes = self.mSettings.guidedProbes;
+    while (hi - lo > 1) {
+        const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+        // Both ends know their distance: interpolating now is as good as narrowing further.
+        if (maxProbes > 0 && probes >= maxProbes && cl > 0.0f && ch < 0.0f) break;
+        ++probes;
+        int j = (lo + hi) / 2;
+        const bool secant = slow < 2 && cl > 0.0f && ch < 0.0f;  // false for NaN
+        if (secant) {
+            const double e = lo + (hi - lo) * double(cl) / (double(cl) - double(ch));
+            j = std::clamp(static_cast<int>(std::floor(e)), lo + 1, hi - 1);
+        }
+        const int before = hi - lo;
+        (visible(at(j)) ? lo : hi) = j;
+        if (secant && 2 * (hi - lo) > before) ++slow;  // secant stalling: bisect instead
+    }
+    finalVis = at(lo);
+    finalHid = at(hi);
+    const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+    const double f = (cl > 0.0f && ch < 0.0f) ? double(cl) / (double(cl) - double(ch)) : 0.5;
+    return vertexBetween(at(lo), at(hi), f);
+}
+
+// The contour vertex at fraction f of the final interval vis -> hid.
+Vertex ContourIntegrator::Lattice::vertexBetween(LatticePoint vis, LatticePoint hid, double f) {
+    const float h = peek(hid);
+    const Vec3 pv = pointOf(vis), ph = pointOf(hid);
+    Vertex v;
+    if (h == kBelowHorizon) {
+        const double t = borderCrossing(pv, ph, v.clip);
+        v.c = pv + t * (ph - pv);
+        v.i = v.c;
+    } else {
+        v.c = pv + f * (ph - pv);
+        v.i = rec.point + double(h) * (v.c - rec.point);
+    }
+    return v;
+}
+
+void ContourIntegrator::Lattice::emit(const Vec3& a, const Vec3& b, double weight) {
+    if (self.mSettings.gradient) {
+        const EdgeDerivative e = edgeGWithDerivative(a - rec.point, b - rec.point);
+        g += weight * e.g;
+        dg += weight * e.dg;
+    } else {
+        g += weight * edgeG(a - rec.point, b - rec.point);
+    }
+}
+
+}  // namespace penumbra

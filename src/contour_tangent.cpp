@@ -1,0 +1,287 @@
+// The distance-guided and tangent modes' geometry: a ray's clearance and distance gradient
+// predict where the silhouette crosses a line on the light (newtonAlong), place dichotomy probes
+// and vertices (crossingNewton), and give each vertex its tangent line, so that a contour piece
+// can be the conic arc tangent to both ends (tangentArc, emitArc).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "contour_lattice.h"
+
+namespace penumbra {
+
+float ContourIntegrator::Lattice::clearanceOf(LatticePoint q) const {
+    return scratch.mClear[settle(q)];
+}
+
+Vec3 ContourIntegrator::Lattice::normalOf(LatticePoint q) const {
+    const float* t = scratch.mGeometry[settle(q)].normal;
+    return Vec3(t[0], t[1], t[2]);
+}
+
+// Where q's ray passes closest to the surface, as a fraction of the ray (0 unknown).
+double ContourIntegrator::Lattice::closestFractionOf(LatticePoint q) const {
+    return scratch.mGeometry[settle(q)].closest;
+}
+
+// Whether q was answered by an earlier receiver point's ray (its distances approximate).
+bool ContourIntegrator::Lattice::staleOf(LatticePoint q) const {
+    return scratch.mGeometry[settle(q)].stale != 0.0f;
+}
+
+// The obstacle q's clearance was measured to (-1 unknown).
+int ContourIntegrator::Lattice::obstacleOf(LatticePoint q) const {
+    return static_cast<int>(scratch.mGeometry[settle(q)].obstacle);
+}
+
+// tangentContour: where the contour crosses the line X(t) = from + t dir (world, on the
+// light), predicted from the ray to lattice sample q alone. That ray passes at angular
+// clearance c from the surface where the distance gradient is g; moving its end by delta
+// on the light changes that clearance by (g . delta) / D to first order (D: the ray's
+// length), so the contour is the line g . (X - Q) = -c D. NaN when q's ray knows nothing.
+double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
+                                               const Vec3& dir) const {
+    const double c = clearanceOf(q);
+    const Vec3 g = normalOf(q);
+    if (!std::isfinite(c) || glm::dot(g, g) == 0.0) return std::nan("");
+    const Vec3 target = pointOf(q);
+    const double D = glm::length(target - origin);
+    const double slope = glm::dot(g, dir);
+    if (std::abs(slope) < 1e-9 * glm::length(dir)) return std::nan("");
+    return (-c * D - glm::dot(g, from - target)) / slope;
+}
+
+// The unit normal of the plane of grazing rays through the ray to lattice sample q, made
+// exactly perpendicular to that ray (0 when unknown).
+Vec3 ContourIntegrator::Lattice::grazingPlane(LatticePoint q, const Vec3& onContour) const {
+    const Vec3 g = normalOf(q);
+    if (glm::dot(g, g) == 0.0) return Vec3(0.0);
+    const Vec3 w = glm::normalize(onContour - origin);
+    const Vec3 gp = g - glm::dot(g, w) * w;
+    const double len = glm::length(gp);
+    return len > 1e-6 ? gp / len : Vec3(0.0);
+}
+
+// tangentContour's dichotomy: each probe goes where a Newton step from the bracket end with
+// the smaller clearance puts the contour (the secant or the middle when neither end knows
+// its distance), rounded toward the visible end so that the probe tends to be a visible ray
+// just off the surface, whose gradient is the most reliable; after `guidedProbes` probes
+// (at least one) the vertex is placed by the same rule inside the final bracket.
+Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint hid, int steps,
+                                                  LatticePoint& finalVis, LatticePoint& finalHid) {
+    const int count = 1 << steps;
+    const int da = (hid.a - vis.a) / count, db = (hid.b - vis.b) / count;
+    auto at = [&](int j) { return LatticePoint{vis.a + j * da, vis.b + j * db}; };
+    const Vec3 p0 = pointOf(vis);
+    const Vec3 step = pointOf(at(1)) - p0;  // world vector of one position
+    // Where the contour is predicted inside [lo, hi] (in positions from vis), and whether
+    // that prediction can stand as the vertex: a Newton step from the visible end (outside
+    // the surface the distance is exact, and its gradient points at the nearest face or
+    // edge, so a sharp silhouette's line comes out right), or a step of at most one
+    // position from the hidden end (inside, the gradient is only right on smooth surfaces).
+    struct Guess {
+        double e;
+        bool final;
+        int from;  // the bracket end whose Newton step it is, -1 for none
+    };
+    // A Newton step from the visible end stands as the vertex only when it is short (its
+    // error grows with the square of its length) and aims at the obstacle that hides the
+    // other end (the nearest surface may be another obstacle's, whose silhouette does not
+    // cross this side at all); otherwise the dichotomy goes on.
+    constexpr double kReach = 2.0;  // positions
+    auto estimate = [&](int lo, int hi) -> Guess {
+        // A reused first-level sample's distances are another point's: good enough to aim a
+        // probe, not to place a vertex.
+        const double fromVis = newtonAlong(at(lo), p0, step);
+        if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi)
+            return {fromVis,
+                    !staleOf(at(lo)) && fromVis - lo <= kReach &&
+                        obstacleOf(at(lo)) == obstacleOf(at(hi)),
+                    lo};
+        const double fromHid = newtonAlong(at(hi), p0, step);
+        if (std::isfinite(fromHid) && fromHid >= lo && fromHid <= hi)
+            return {fromHid, hi - fromHid <= 1.0 && !staleOf(at(hi)), hi};
+        const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
+        if (cl > 0.0f && ch < 0.0f)
+            return {lo + (hi - lo) * double(cl) / (double(cl) - double(ch)), false, -1};
+        return {0.5 * (lo + hi), false, -1};
+    };
+    int lo = 0, hi = count;
+    const int minProbes = std::max(1, self.mSettings.guidedProbes);
+    // At least minProbes probes, then more only while the prediction cannot stand; never
+    // more than the paper's `steps` (the bracket is then one position wide).
+    for (int probes = 0; hi - lo > 1; ++probes) {
+        const Guess g = estimate(lo, hi);
+        if (probes >= minProbes && g.final) break;
+        const int j = std::clamp(static_cast<int>(std::floor(g.e)), lo + 1, hi - 1);
+        (visible(at(j)) ? lo : hi) = j;
+    }
+    narrowByTraced(at, lo, hi);
+    finalVis = at(lo);
+    finalHid = at(hi);
+    const Guess g = estimate(lo, hi);
+    const double e = std::clamp(g.e, double(lo), double(hi));
+    Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
+    if (peek(at(hi)) == kBelowHorizon) {
+        // On the horizon the contour is the (straight) line where the receiver's tangent
+        // plane cuts the light: its plane through M is that tangent plane. On a polygon
+        // light's edge or a disc light's circle, the plane through M and the border's
+        // tangent line.
+        const Vec3 w = glm::normalize(v.c - origin);
+        Vec3 np(0.0);
+        if (v.clip == kClipHorizon) {
+            np = rec.normal - glm::dot(rec.normal, w) * w;
+        } else {
+            np = glm::cross(glm::cross(lightNormal, inwardAt(v.clip, v.c)), w);
+        }
+        if (glm::length(np) > 1e-9) v.plane = glm::normalize(np);
+        v.obstacle = kHorizonContour;
+    } else {
+        // The gradient of the end that placed the vertex; else the visible end's (outside
+        // the surface it points at the nearest edge or face, also on a sharp silhouette),
+        // else the hidden end's.
+        const int order[3] = {g.from, lo, hi};
+        for (int j : order) {
+            if (j < 0) continue;
+            v.plane = grazingPlane(at(j), v.c);
+            if (glm::dot(v.plane, v.plane) == 0.0) continue;
+            // The 3D contour point (Fig. 5): where that ray grazes the surface, carried
+            // over to the vertex's own ray.
+            const double h = closestFractionOf(at(j));
+            if (h > 0.0) v.i = origin + h * (v.c - origin);
+            v.obstacle = obstacleOf(at(j));
+            break;
+        }
+    }
+    return v;
+}
+
+bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s,
+                                            double thr, Arc& arc) {
+    if (glm::dot(a.plane, a.plane) == 0.0 || glm::dot(b.plane, b.plane) == 0.0) return false;
+    // A silhouette meeting a polygon or disc light's border: a shoulder ray's clearance
+    // tells where the silhouette would run on past the border, not where the contour runs
+    // (it turns along the border there), so the piece is checked and refined as in section
+    // 3.2. (Measured: 0.9% of the unoccluded form factor missed under a disc, at any depth.)
+    if (shaped && (a.clip >= 0) != (b.clip >= 0)) return false;
+    // Two obstacles' silhouettes meet somewhere between: their tangent lines say nothing
+    // about where, so the piece is checked and refined as in section 3.2.
+    // (The horizon is a straight line: its meeting with one silhouette is a corner the
+    // tangent lines do describe.)
+    if (a.obstacle != b.obstacle && a.obstacle != kHorizonContour &&
+        b.obstacle != kHorizonContour)
+        return false;
+    const Vec3 ta = glm::cross(a.plane, lightNormal), tb = glm::cross(b.plane, lightNormal);
+    const double la = glm::length(ta), lb = glm::length(tb);
+    if (la < 1e-6 || lb < 1e-6) return false;
+    const Vec3 ua = ta / la, ub = tb / lb;
+    const Vec3 chord = b.c - a.c;
+    const double len = glm::length(chord);
+    if (len == 0.0) return false;
+    const double sinA = glm::dot(glm::cross(ua, chord / len), lightNormal);
+    const double sinB = glm::dot(glm::cross(ub, chord / len), lightNormal);
+    constexpr double kStraight = 0.01;  // |sin| of the tangents' angle to the chord
+    if (std::abs(sinA) < kStraight && std::abs(sinB) < kStraight) {
+        arc.straight = true;
+        return true;
+    }
+    const double den = glm::dot(glm::cross(ua, ub), lightNormal);
+    if (std::abs(den) < 1e-6) return false;
+    const double sa = glm::dot(glm::cross(b.c - a.c, ub), lightNormal) / den;
+    arc.k = a.c + sa * ua;
+    // K must project inside the chord and lie within the square: otherwise the tangents
+    // describe an S-curve or a piece the square cannot hold.
+    const double along = glm::dot(arc.k - a.c, chord) / (len * len);
+    if (!(along > 0.0 && along < 1.0)) return false;
+    // Tangents that turn by much more than a right angle meet far from the arc (at infinity
+    // for a half circle): one conic piece then rests on a shoulder ray placed far from the
+    // contour, so such a piece is checked and refined instead.
+    const double height = glm::length(glm::cross(arc.k - a.c, chord)) / len;
+    if (height > len) return false;
+    const double side = double(s) / N;
+    const Vec2 kuv = light.coordinates(arc.k);
+    const double ku = kuv.x, kv = kuv.y;
+    const double u0 = double(x0) / N, v0 = double(y0) / N;
+    // K within the square (a quarter side of margin), and never beyond the light's border: an arc bulging out
+    // of the light would count area the light does not have.
+    constexpr double kMargin = 0.25;
+    if (ku < u0 - kMargin * side || ku > u0 + (1 + kMargin) * side ||
+        kv < v0 - kMargin * side || kv > v0 + (1 + kMargin) * side)
+        return false;
+    if (ku < 0.0 || ku > 1.0 || kv < 0.0 || kv > 1.0) return false;
+    const double triangle = std::abs(edgeF(a.c, arc.k) + edgeF(arc.k, b.c) + edgeF(b.c, a.c));
+    if (triangle < 1.5 * thr) {
+        arc.w = 1.0;
+        return true;
+    }
+    // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
+    const Vec3 m = 0.5 * (a.c + b.c);
+    const Vec3 target = m + 0.75 * (arc.k - m);
+    const Vec2 tuv = light.coordinates(target);
+    const double tu = tuv.x, tv = tuv.y;
+    const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * N)), x0, x0 + s),
+                         std::clamp(static_cast<int>(std::lround(tv * N)), y0, y0 + s)};
+    if (sample(q, false) == kBelowHorizon) return false;
+    double lambda = newtonAlong(q, m, arc.k - m);
+    if (!std::isfinite(lambda)) return false;
+    // One Newton step from a sample far from the contour can misplace the shoulder (the
+    // clearance is not linear across the light): when the step lands more than a lattice
+    // unit away, a second ray at the landing point places it again from there.
+    {
+        const Vec3 land = m + std::clamp(lambda, 0.0, 1.0) * (arc.k - m);
+        const Vec2 luv = light.coordinates(land);
+        const double lu = luv.x, lv = luv.y;
+        const LatticePoint q2{std::clamp(static_cast<int>(std::lround(lu * N)), x0, x0 + s),
+                              std::clamp(static_cast<int>(std::lround(lv * N)), y0, y0 + s)};
+        if (std::abs(q2.a - q.a) + std::abs(q2.b - q.b) > 1 &&
+            sample(q2, false) != kBelowHorizon) {
+            const double again = newtonAlong(q2, m, arc.k - m);
+            if (std::isfinite(again)) lambda = again;
+        }
+    }
+    arc.probed = true;
+    const double l = std::clamp(lambda, 0.0, 1.0);
+    if (l <= 0.02) {
+        arc.straight = true;
+    } else if (l >= 0.98) {
+        arc.w = std::numeric_limits<double>::infinity();  // a corner at K
+    } else {
+        arc.w = l / (1.0 - l);
+    }
+    return true;
+}
+
+// Emits the arc from a to b (8 chords; the polygon a K b for a corner). Obstacle points
+// along it take the hit fraction interpolated between a's and b's.
+void ContourIntegrator::Lattice::emitArc(const Vertex& a, const Vertex& b, const Arc& arc) {
+    auto fraction = [&](const Vertex& v) {
+        const double lc = glm::length(v.c - rec.point);
+        return lc > 0.0 ? glm::length(v.i - rec.point) / lc : 1.0;
+    };
+    const double ha = fraction(a), hb = fraction(b);
+    auto onObstacle = [&](const Vec3& c, double t) {
+        return rec.point + ((1.0 - t) * ha + t * hb) * (c - rec.point);
+    };
+    if (arc.straight) {
+        emit(a.i, b.i);
+        return;
+    }
+    if (!std::isfinite(arc.w)) {
+        const Vec3 ik = onObstacle(arc.k, 0.5);
+        emit(a.i, ik);
+        emit(ik, b.i);
+        return;
+    }
+    constexpr int kChords = 8;
+    Vec3 prev = a.i;
+    for (int i = 1; i <= kChords; ++i) {
+        const double t = double(i) / kChords;
+        const double b0 = (1 - t) * (1 - t), b1 = 2.0 * arc.w * t * (1 - t), b2 = t * t;
+        const Vec3 c = (b0 * a.c + b1 * arc.k + b2 * b.c) / (b0 + b1 + b2);
+        const Vec3 next = i == kChords ? b.i : onObstacle(c, t);
+        emit(prev, next);
+        prev = next;
+    }
+}
+
+}  // namespace penumbra
