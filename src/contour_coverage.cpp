@@ -52,6 +52,18 @@ double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const
 // lies in one of the gathered discs; with `own` >= 0, a disc's radius that excludes that
 // obstacle counts (Certificate::radiusOthers).
 bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, int own) const {
+    // Most discs are far from most cells: a disc that cannot reach the cell's centre plus the
+    // cell's reach holds none of its points. When no disc can and the centre is above the
+    // horizon (so that some corner is), the answer is no without the corners.
+    const Vec3 centre = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
+    bool near = false;
+    for (const Disc& d : scratch.mDiscs) {
+        if (mayHold(d, centre, size * cellReach, own)) {
+            near = true;
+            break;
+        }
+    }
+    if (!near && above(centre) > 1e-9 * unit) return false;
     Vec3 pts[8];
     int n = 0;
     const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
@@ -75,6 +87,15 @@ bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, i
         if (all) return true;
     }
     return false;
+}
+
+// False when disc d holds no point within `reach` of `centre` (true: it may), with a margin
+// far above rounding, so that cellInDisc() answers as if it had checked every point.
+bool ContourIntegrator::Lattice::mayHold(const Disc& d, const Vec3& centre, double reach,
+                                         int own) const {
+    const double r = own >= 0 && d.obstacle == own ? std::max(d.r, d.ro) : d.r;
+    if (!(r > 0.0)) return false;
+    return glm::length(centre - d.c) <= (r + reach) * (1.0 + 1e-9) + 1e-6 * unit;
 }
 
 // Whether the cell lies wholly outside a polygon light's cutting edges or a disc's circle.
@@ -192,12 +213,8 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
     const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                        glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
     scratch.mDiscs.clear();
-    for (uint32_t idx : scratch.mTraced) {
-        const Certificate& c = scratch.mCert[idx];
-        const Vec3 p = pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))});
-        if (glm::length(p - centre) >= std::max(c.radius, c.radiusOthers) + half) continue;
-        scratch.mDiscs.push_back({p, c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle});
-    }
+    for (const Disc& d : scratch.mTracedDiscs)
+        if (glm::length(d.c - centre) < std::max(d.r, d.ro) + half) scratch.mDiscs.push_back(d);
     scratch.mNearSegs.clear();
     for (const Segment& g : scratch.mSegs)
         if (distanceToSegment(centre, g) < g.width + half) scratch.mNearSegs.push_back(g);
@@ -227,10 +244,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
     } else {
         // Only the discs traced since: drop the cells they cover, narrow the others' gaps.
         for (size_t t = mScanned; t < scratch.mTraced.size(); ++t) {
-            const uint32_t idx = scratch.mTraced[t];
-            const Certificate& c = scratch.mCert[idx];
-            const Disc d{pointOf({static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))}),
-                         c.radius * c.radius, c.radiusOthers * c.radiusOthers, c.obstacle};
+            const Disc& d = scratch.mTracedDiscs[t];
             scratch.mDiscs.assign(1, d);
             size_t kept = 0;
             for (Uncovered& u : cells) {

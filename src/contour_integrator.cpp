@@ -57,11 +57,13 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
     // level's square from one of its corners.
     unit = 0.5 * (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;
+    cellReach = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV)) / N;
     // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
     want = 0.51 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
     const size_t size = static_cast<size_t>(N + 1) * (N + 1);
     if (s.mSettings.coverage && scratch.mCert.size() < size) scratch.mCert.resize(size);
     scratch.mTraced.clear();
+    scratch.mTracedDiscs.clear();
     scratch.mAllTraced.clear();
     scratch.mMarked.clear();
     if (scratch.mStamp.size() < size) {
@@ -132,8 +134,13 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     s = ray.sample;
     if (self.mSettings.coverage) {
         scratch.mCert[idx] = ray.cert;
-        if (ray.cert.radius > 0.0 || ray.cert.radiusOthers > 0.0)
+        const Certificate& c = ray.cert;
+        if (c.radius > 0.0 || c.radiusOthers > 0.0) {
             scratch.mTraced.push_back(static_cast<uint32_t>(idx));
+            scratch.mTracedDiscs.push_back({target, c.radius * c.radius,
+                                            c.radiusOthers * c.radiusOthers, c.obstacle,
+                                            c.radius, c.radiusOthers});
+        }
     }
     return s;
 }

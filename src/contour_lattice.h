@@ -54,6 +54,7 @@ struct Disc {
     double r2;     // squared radius of the full certificate
     double ro2;    // squared radius that excludes every obstacle but `obstacle`
     int obstacle;  // Certificate::obstacle
+    double r, ro;  // the radii themselves (Certificate::radius, radiusOthers)
 };
 struct Segment {  // a piece of located contour and the band around it
     Vec3 a, b;
@@ -126,6 +127,7 @@ struct ContourIntegrator::Scratch {
     std::vector<Leaf> mLeaves;       // coverage: the last pass's leaves
     std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
     std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
+    std::vector<Disc> mTracedDiscs;  // coverage: their discs, in the same order
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     uint32_t mGeneration = 0;
 };
@@ -149,6 +151,7 @@ struct ContourIntegrator::Lattice {
     double want;      // coverage: the radius that covers the whole light from any of its points
     double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
     double unit;         // world length of one lattice unit (averaged over the two edges)
+    double cellReach;    // coverage: a cell's farthest point from its centre, per unit of side
     // What emits: the frame above the horizon, inside a polygon light's cutting edges and a disc
     // light's circle. Points outside are hidden without a ray (kBelowHorizon).
     std::vector<LightEdge> cuts;
@@ -257,6 +260,7 @@ struct ContourIntegrator::Lattice {
     bool wholeLight();
     double squareFormFactor(int x0, int y0, int s) const;
     bool cellInDisc(double a0, double b0, double size, int own) const;
+    bool mayHold(const Disc& d, const Vec3& centre, double reach, int own) const;
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
     int bandOwner(const Vec3& centre, double halfDiag) const;
