@@ -139,13 +139,12 @@ int ContourIntegrator::Lattice::bandOwner(const Vec3& centre, double halfDiag) c
 
 // Collects every uncovered cell of side `minSize` in the cell (a0, b0, size) into
 // scratch.mUncovered, with its centre's distance to the nearest disc that would prove it.
-// `leafOwn` >= 0: the cell lies in a contour square whose pieces all belong to that
-// obstacle (the square is within its own contour's band).
-void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size, double minSize,
-                                                int leafOwn) const {
+// A cell inside the band of a gathered contour segment needs only a disc that excludes the
+// other obstacles (bandOwner).
+void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
+                                                double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
     if (cellInDisc(a0, b0, size, -1)) return;
-    (void)leafOwn;
     const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
     if (!scratch.mNearSegs.empty()) {
         const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
@@ -156,7 +155,7 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     if (size > minSize) {
         const double h = 0.5 * size;
         for (int q = 0; q < 4; ++q)
-            uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, leafOwn);
+            uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize);
         return;
     }
     if (!emits(c)) return;
@@ -202,7 +201,7 @@ double ContourIntegrator::Lattice::finalUncoveredFormFactor() {
     for (const Uncovered& u : coarse) {
         const int a0 = static_cast<int>(u.a0), b0 = static_cast<int>(u.b0), s = static_cast<int>(u.size);
         gatherNear(a0, b0, s);
-        uncoveredCells(u.a0, u.b0, u.size, 1.0, -1);
+        uncoveredCells(u.a0, u.b0, u.size, 1.0);
     }
     return uncoveredFormFactor();
 }
@@ -233,12 +232,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         cells.clear();
         for (const Leaf& leaf : scratch.mLeaves) {
             gatherNear(leaf.x0, leaf.y0, leaf.s);
-            int own = -1;
-            for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
-                const int o = scratch.mSegs[i].own;
-                own = i == leaf.seg0 || o == own ? o : -1;
-            }
-            uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell, own);
+            uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell);
         }
         mScanned = scratch.mTraced.size();
     } else {
@@ -277,7 +271,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
             gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
             const double h = 0.5 * u.size;
             for (int q = 0; q < 4; ++q)
-                uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h, -1);
+                uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h);
             continue;
         }
         const int ia = static_cast<int>(u.a0), ib = static_cast<int>(u.b0);
@@ -298,7 +292,8 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
         gatherNear(ia, ib, static_cast<int>(u.size));
         for (int q = 0; q < 4; ++q)
-            uncoveredCells(u.a0 + (q & 1) * 0.5 * u.size, u.b0 + (q >> 1) * 0.5 * u.size, 0.5 * u.size, 0.5 * u.size, -1);
+            uncoveredCells(u.a0 + (q & 1) * 0.5 * u.size, u.b0 + (q >> 1) * 0.5 * u.size,
+                           0.5 * u.size, 0.5 * u.size);
     }
 }
 

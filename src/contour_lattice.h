@@ -264,7 +264,7 @@ struct ContourIntegrator::Lattice {
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
     int bandOwner(const Vec3& centre, double halfDiag) const;
-    void uncoveredCells(double a0, double b0, double size, double minSize, int leafOwn) const;
+    void uncoveredCells(double a0, double b0, double size, double minSize) const;
     static void gapTo(Uncovered& u, const Disc& d);
     double uncoveredFormFactor() const;
     double finalUncoveredFormFactor();
