@@ -58,7 +58,7 @@ bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, i
     const Vec3 centre = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
     bool near = false;
     for (const Disc& d : scratch.mDiscs) {
-        if (mayHold(d, centre, size * cellReach, own)) {
+        if (mayHold(d, glm::length(centre - d.c), size * cellReach, own)) {
             near = true;
             break;
         }
@@ -89,13 +89,13 @@ bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, i
     return false;
 }
 
-// False when disc d holds no point within `reach` of `centre` (true: it may), with a margin
-// far above rounding, so that cellInDisc() answers as if it had checked every point.
-bool ContourIntegrator::Lattice::mayHold(const Disc& d, const Vec3& centre, double reach,
-                                         int own) const {
+// False when disc d, `dist` from a cell's centre, holds no point within `reach` of that centre
+// (true: it may), with a margin far above rounding, so that cellInDisc() answers as if it had
+// checked every point.
+bool ContourIntegrator::Lattice::mayHold(const Disc& d, double dist, double reach, int own) const {
     const double r = own >= 0 && d.obstacle == own ? std::max(d.r, d.ro) : d.r;
     if (!(r > 0.0)) return false;
-    return glm::length(centre - d.c) <= (r + reach) * (1.0 + 1e-9) + 1e-6 * unit;
+    return dist <= (r + reach) * (1.0 + 1e-9) + 1e-6 * unit;
 }
 
 // Whether the cell lies wholly outside a polygon light's cutting edges or a disc's circle.
@@ -168,14 +168,14 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
             if (!g.border && distanceToSegment(c, g) + halfDiag <= epsWorld) return;
     }
     Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), bandOwner(c, 0.0), c};
-    for (const Disc& d : scratch.mDiscs) gapTo(u, d);
+    for (const Disc& d : scratch.mDiscs) gapTo(u, d, glm::length(u.centre - d.c));
     scratch.mUncovered.push_back(u);
 }
 
-// Narrows an uncovered cell's distance to proven ground by one disc.
-void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d) {
-    const double r2 = u.own >= 0 && d.obstacle == u.own ? std::max(d.r2, d.ro2) : d.r2;
-    u.gap = std::min(u.gap, glm::length(u.centre - d.c) - std::sqrt(r2));
+// Narrows an uncovered cell's distance to proven ground by one disc, `dist` from its centre.
+void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d, double dist) {
+    const double r = u.own >= 0 && d.obstacle == u.own ? std::max(d.r, d.ro) : d.r;
+    u.gap = std::min(u.gap, dist - r);
 }
 
 // Form factor of the uncovered cells (the elementary form factor at each centre).
@@ -242,10 +242,17 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
             scratch.mDiscs.assign(1, d);
             size_t kept = 0;
             for (Uncovered& u : cells) {
-                if (cellInDisc(u.a0, u.b0, u.size, -1) ||
-                    (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own)))
+                // The centre's distance serves both tests; a disc that cannot reach the cell
+                // covers none of it (cellInDisc's own shortcut, without recomputing the centre).
+                const double dist = glm::length(u.centre - d.c);
+                const double reach = u.size * cellReach;
+                const bool near = mayHold(d, dist, reach, -1) ||
+                                  (u.own >= 0 && mayHold(d, dist, reach, u.own));
+                if ((near || !(above(u.centre) > 1e-9 * unit)) &&
+                    (cellInDisc(u.a0, u.b0, u.size, -1) ||
+                     (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own))))
                     continue;
-                gapTo(u, d);
+                gapTo(u, d, dist);
                 cells[kept++] = u;
             }
             cells.resize(kept);

@@ -260,12 +260,12 @@ struct ContourIntegrator::Lattice {
     bool wholeLight();
     double squareFormFactor(int x0, int y0, int s) const;
     bool cellInDisc(double a0, double b0, double size, int own) const;
-    bool mayHold(const Disc& d, const Vec3& centre, double reach, int own) const;
+    bool mayHold(const Disc& d, double dist, double reach, int own) const;
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
     int bandOwner(const Vec3& centre, double halfDiag) const;
     void uncoveredCells(double a0, double b0, double size, double minSize) const;
-    static void gapTo(Uncovered& u, const Disc& d);
+    static void gapTo(Uncovered& u, const Disc& d, double dist);
     double uncoveredFormFactor() const;
     double finalUncoveredFormFactor();
     void gatherNear(int x0, int y0, int s);
