@@ -1031,7 +1031,13 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
         row.raysPerVr = r.stats.shadowRaysPerViewingRay();
         row.seconds = r.stats.seconds;
         row.timeRatio = r.stats.seconds / std::max(1e-9, aciSeconds);
-        row.m = &r == &aci ? aciMetrics : measure(r.color, cmp);
+        // The references at a stride > 1 are rendered on the compared pixels only (M x M):
+        // the first is not measured, the second against the first below.
+        if (&r == &aci) {
+            row.m = aciMetrics;
+        } else if (r.color.width == cmp.sampling.size) {
+            row.m = measure(r.color, cmp);
+        }
         row.diffOverAci = aciMetrics.mean > 0 ? row.m.mean / aciMetrics.mean : 0.0;
         return row;
     };
