@@ -6,7 +6,8 @@
 ///   contour_integrator.cpp  the public class; the lattice's samples and their rays
 ///   contour_squares.cpp     Vedel's sections 3.1-3.2: passes over the first-level grid,
 ///                           marching squares with centre rays for saddles, dichotomy on the
-///                           shared lattice, the check point and refinement, restarts
+///                           shared lattice, the check point and refinement, and the
+///                           inconsistencies that restart the light one level deeper
 ///   contour_tangent.cpp     distance-guided dichotomy, Newton placement of vertices, arcs
 ///                           tangent to the silhouette (the default tangent mode)
 ///   contour_coverage.cpp    certified coverage: discs, uncovered cells, contradictions, the
