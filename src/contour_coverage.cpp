@@ -48,14 +48,14 @@ double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const
     return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
 }
 
-// Whether the part of the cell (lattice coordinates a0, b0, side `size`) above the horizon
-// lies in one of the gathered discs; with `own` >= 0, a disc's radius that excludes that
-// obstacle counts (Certificate::radiusOthers).
-bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, int own) const {
+// Whether the part of the cell (lattice coordinates a0, b0, side `size`, centre `centre` on the
+// light) above the horizon lies in one of the gathered discs; with `own` >= 0, a disc's radius
+// that excludes that obstacle counts (Certificate::radiusOthers).
+bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, int own,
+                                            const Vec3& centre) const {
     // Most discs are far from most cells: a disc that cannot reach the cell's centre plus the
     // cell's reach holds none of its points. When no disc can and the centre is above the
     // horizon (so that some corner is), the answer is no without the corners.
-    const Vec3 centre = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
     bool near = false;
     for (const Disc& d : scratch.mDiscs) {
         if (mayHold(d, glm::length(centre - d.c), size * cellReach, own)) {
@@ -78,7 +78,8 @@ bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, i
     }
     if (n == 0) return true;  // below the horizon: hidden, no ray needed
     for (const Disc& d : scratch.mDiscs) {
-        const double r2 = own >= 0 && d.obstacle == own ? std::max(d.r2, d.ro2) : d.r2;
+        const double r = own >= 0 && d.obstacle == own ? std::max(d.r, d.ro) : d.r;
+        const double r2 = r * r;
         bool all = r2 > 0.0;
         for (int i = 0; i < n && all; ++i) {
             const Vec3 e = pts[i] - d.c;
@@ -144,13 +145,13 @@ int ContourIntegrator::Lattice::bandOwner(const Vec3& centre, double halfDiag) c
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
-    if (cellInDisc(a0, b0, size, -1)) return;
     const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
+    if (cellInDisc(a0, b0, size, -1, c)) return;
     if (!scratch.mNearSegs.empty()) {
         const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
                                                   light.point(a0 / N, b0 / N));
         const int own = bandOwner(c, halfDiag);
-        if (own >= 0 && cellInDisc(a0, b0, size, own)) return;
+        if (own >= 0 && cellInDisc(a0, b0, size, own, c)) return;
     }
     if (size > minSize) {
         const double h = 0.5 * size;
@@ -242,17 +243,10 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
             scratch.mDiscs.assign(1, d);
             size_t kept = 0;
             for (Uncovered& u : cells) {
-                // The centre's distance serves both tests; a disc that cannot reach the cell
-                // covers none of it (cellInDisc's own shortcut, without recomputing the centre).
-                const double dist = glm::length(u.centre - d.c);
-                const double reach = u.size * cellReach;
-                const bool near = mayHold(d, dist, reach, -1) ||
-                                  (u.own >= 0 && mayHold(d, dist, reach, u.own));
-                if ((near || !(above(u.centre) > 1e-9 * unit)) &&
-                    (cellInDisc(u.a0, u.b0, u.size, -1) ||
-                     (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own))))
+                if (cellInDisc(u.a0, u.b0, u.size, -1, u.centre) ||
+                    (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own, u.centre)))
                     continue;
-                gapTo(u, d, dist);
+                gapTo(u, d, glm::length(u.centre - d.c));
                 cells[kept++] = u;
             }
             cells.resize(kept);

@@ -137,9 +137,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         const Certificate& c = ray.cert;
         if (c.radius > 0.0 || c.radiusOthers > 0.0) {
             scratch.mTraced.push_back(static_cast<uint32_t>(idx));
-            scratch.mTracedDiscs.push_back({target, c.radius * c.radius,
-                                            c.radiusOthers * c.radiusOthers, c.obstacle,
-                                            c.radius, c.radiusOthers});
+            scratch.mTracedDiscs.push_back({target, c.radius, c.radiusOthers, c.obstacle});
         }
     }
     return s;

@@ -52,10 +52,9 @@ struct Corner {
 
 struct Disc {
     Vec3 c;        // centre on the light
-    double r2;     // squared radius of the full certificate
-    double ro2;    // squared radius that excludes every obstacle but `obstacle`
+    double r;      // radius of the full certificate (Certificate::radius)
+    double ro;     // radius that excludes every obstacle but `obstacle` (radiusOthers)
     int obstacle;  // Certificate::obstacle
-    double r, ro;  // the radii themselves (Certificate::radius, radiusOthers)
 };
 struct Segment {  // a piece of located contour and the band around it
     Vec3 a, b;
@@ -260,7 +259,7 @@ struct ContourIntegrator::Lattice {
     // ----- Coverage and the error bound (contour_coverage.cpp) -----
     bool wholeLight();
     double squareFormFactor(int x0, int y0, int s) const;
-    bool cellInDisc(double a0, double b0, double size, int own) const;
+    bool cellInDisc(double a0, double b0, double size, int own, const Vec3& centre) const;
     bool mayHold(const Disc& d, double dist, double reach, int own) const;
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
