@@ -356,29 +356,81 @@ Vec3 gradientAt(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& p) {
 /// Smallest value of `grid` along the segment from + t dir, t in [t0, t1], by sphere tracing
 /// (steps of 0.8 |phi|, at least half a voxel). The stretch where phi only grows from the start
 /// is skipped (a ray leaving the surface it starts on); the march stops once it climbs out past
-/// the deepest point inside.
+/// the deepest point inside. With `polish`, the smallest sample is then refined by a
+/// golden-section search between its two neighbouring samples: past a sharp edge phi along the
+/// ray is V-shaped, and the best of samples half a voxel apart sits up to a quarter voxel of
+/// slope above its bottom, which put the clearance's zero outside the surface the intersector
+/// hits (a box level set's shadow came out up to 2.6% of the light too bright in the tangent
+/// mode).
 template <typename Accessor>
 Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& from,
-                       const Vec3& dir, double t0, double t1) {
+                       const Vec3& dir, double t0, double t1, bool polish = false) {
     const double voxel = grid.voxelSize()[0];
+    auto phiAt = [&](double t) {
+        const Vec3 p = from + t * dir;
+        return double(openvdb::tools::BoxSampler::sample(
+            acc, grid.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z))));
+    };
     Clearance c;
     double minPhi = std::numeric_limits<double>::infinity(), prev = -minPhi;
-    bool leaving = true;
+    double before = t0, after = t1, last = t0;  // the samples around the smallest
+    bool leaving = true, afterKnown = false;
     for (double t = t0; t <= t1;) {
-        const Vec3 p = from + t * dir;
-        const double phi = openvdb::tools::BoxSampler::sample(
-            acc, grid.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
+        const double phi = phiAt(t);
         leaving = leaving && phi >= prev && phi > 0.0;
         prev = phi;
         if (!leaving && phi < minPhi) {
             minPhi = phi;
             c.at = t;
+            before = last;
+            afterKnown = false;
+        } else if (!afterKnown && std::isfinite(minPhi)) {
+            after = t;
+            afterKnown = true;
         }
+        last = t;
         if (minPhi < 0.0 && phi > minPhi + voxel) break;
         t += std::max(0.8 * std::abs(phi), 0.5 * voxel);
     }
+    if (polish && std::isfinite(minPhi)) {
+        // Golden-section search on [before, after], keeping the sampled minimum as a candidate.
+        const double g = 0.5 * (std::sqrt(5.0) - 1.0);
+        double a = before, b = after;
+        double x1 = b - g * (b - a), x2 = a + g * (b - a);
+        double f1 = phiAt(x1), f2 = phiAt(x2);
+        while (b - a > 0.01 * voxel) {
+            if (f1 < f2) {
+                b = x2, x2 = x1, f2 = f1, x1 = b - g * (b - a), f1 = phiAt(x1);
+            } else {
+                a = x1, x1 = x2, f1 = f2, x2 = a + g * (b - a), f2 = phiAt(x2);
+            }
+        }
+        const double t = f1 < f2 ? x1 : x2, phi = std::min(f1, f2);
+        if (phi < minPhi) minPhi = phi, c.at = t;
+    }
     c.distance = minPhi;
-    if (std::isfinite(minPhi)) c.normal = gradientAt(grid, acc, from + c.at * dir);
+    if (std::isfinite(minPhi)) {
+        const Vec3 p = from + c.at * dir;
+        c.normal = gradientAt(grid, acc, p);
+        if (polish) {
+            // At the closest point the surface's normal is perpendicular to the ray. Past a
+            // sharp edge the gradient there is the average of the two faces' (central
+            // differences straddle the crease), which tilts the grazing plane and so the
+            // contour's tangent line on the light. The gradients two voxels before and after
+            // along the ray are each one side's; the blend of them that is perpendicular to the
+            // ray is the edge's grazing normal (on a smooth surface, the normal at the closest
+            // point to second order).
+            const Vec3 d = glm::normalize(dir);
+            const double s = 2.0 * voxel;
+            const Vec3 gm = gradientAt(grid, acc, p - s * d), gp = gradientAt(grid, acc, p + s * d);
+            const double a = glm::dot(gm, d), b = glm::dot(gp, d);
+            if (a < 0.0 && b > 0.0) {
+                const double l = a / (a - b);
+                const Vec3 n = (1.0 - l) * gm + l * gp;
+                if (glm::length(n) > 1e-6) c.normal = glm::normalize(n);
+            }
+        }
+    }
     return c;
 }
 
@@ -413,7 +465,7 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
     if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
     const double w = 3.0 * coarseVoxel;
     Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir, std::max(t0, c.at - w),
-                               std::min(t1, c.at + w));
+                               std::min(t1, c.at + w), true);
     if (!(std::abs(f.distance) < 0.98 * fineBand)) return c;
     if (f.distance > 0.0) {
         // Outside the refined window only the companion's bound holds.
