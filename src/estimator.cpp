@@ -108,30 +108,59 @@ Footprint footprintOf(const Box3& media, const Vec3& origin, const RectLight& li
 
 Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLight& light,
                          Occluder::Query& query, const MediaCubature& cubature) {
+    // The opaque obstacles first: ACI on the whole light. In an umbra the media change nothing.
+    Estimate out = aci.evaluate(r, light, query);
+    out.pattern.clear();
+    if (!(out.formFactor > 0.0)) return out;
+    const double fullOpen = unoccludedFormFactor(light, r);
+    // Nothing opaque anywhere on the light (the visible form factor is the unoccluded one): a
+    // cell's visible form factor is then its own closed form, no ray needed. Only for rectangle
+    // lights, whose cells are rectangles; a shaped light's cells are integrated by ACI.
+    const bool open = light.shape == LightShape::Rect && out.formFactor >= fullOpen * (1.0 - 1e-9);
+
     const AciSettings base = aci.settings();
     const Vec3 origin = r.point + base.rayOffset * r.normal;
     const Footprint foot = footprintOf(query.mediaBounds(), origin, light);
-    // Transmittance at the nodes of a (2^D + 1)^2 lattice over the light (D = maxDepth + 1, so
-    // that cell centres are nodes too), each traced once; 1 without a ray outside the footprint.
+    const Vec3 lightNormal = light.normal();
     const int depthCap = std::clamp(cubature.maxDepth, 0, 6);
+    // Two rules that agree on one coarse cell can both be wrong (a cloud's edge between its
+    // nodes): every cell is split at least this far (4 x 4 cells, 9 x 9 nodes).
+    constexpr int kMinDepth = 2;
     const int n = 1 << (depthCap + 1);
-    std::map<std::pair<int, int>, double> nodes;
+    // Transmittance and the form-factor kernel at the nodes of a (2^D + 1)^2 lattice over the
+    // light (D = maxDepth + 1: the finest cells span two lattice units, so that their edge
+    // midpoints and centres are nodes too), each traced once; the kernel is 0 below the
+    // receiver's horizon or outside a shaped light. On an open light T = 1 without a ray outside
+    // the footprint; otherwise each node's ray also tells whether an opaque obstacle hides it
+    // (Query::transmitted, one ray for both), so that only the cells the opaque contour may
+    // cross need ACI of their own.
+    struct Node {
+        double t = -1.0, k = 0.0;  // t < 0: not traced yet
+        bool hidden = false;
+    };
+    std::vector<Node> nodes(size_t(n + 1) * (n + 1));
     uint64_t transmittanceRays = 0;
-    auto transmittanceAt = [&](int i, int j) {
-        const auto key = std::make_pair(i, j);
-        const auto it = nodes.find(key);
-        if (it != nodes.end()) return it->second;
+    auto node = [&](int i, int j) -> const Node& {
+        Node& nd = nodes[size_t(j) * (n + 1) + i];
+        if (nd.t >= 0.0) return nd;
         const double u = double(i) / n, v = double(j) / n;
         const Vec3 p = light.point(u, v);
-        double t = 1.0;
-        // Below the receiver's horizon the light does not count: no ray.
-        if (foot.meets(u, v, u, v) && glm::dot(p - r.point, r.normal) > 0.0) {
+        const Vec3 d = p - r.point;
+        const double up = glm::dot(d, r.normal);
+        nd.t = 1.0;
+        if (up > 0.0 && (light.shape == LightShape::Rect || light.contains(p))) {
+            const double d2 = glm::dot(d, d);
+            nd.k = up * std::abs(glm::dot(d, lightNormal)) / (d2 * d2);
             const uint64_t before = query.raysCast();
-            t = query.transmittance(origin, p);
+            if (!open) {
+                nd.t = query.transmitted(origin, p);
+                nd.hidden = !(nd.t > 0.0);
+            } else if (foot.meets(u, v, u, v)) {
+                nd.t = query.transmittance(origin, p);
+            }
             transmittanceRays += query.raysCast() - before;
         }
-        nodes.emplace(key, t);
-        return t;
+        return nd;
     };
     struct Cell {
         int i0, j0, size, depth;  // in lattice units
@@ -143,15 +172,53 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         l.edgeV = light.edgeV * (double(c.size) / n);
         return l;
     };
+    // A cell's mean transmittance over its visible nodes, weighted by the kernel, by two rules
+    // on its 3 x 3 nodes: the tensor Simpson rule (weights 1, 4, 16 for corners, edge
+    // midpoints, centre; exact for T k bicubic) and the five-point rule of corners and centre
+    // (weights 1 and 4; exact for T k bilinear). Their difference estimates the Simpson mean's
+    // error.
+    struct Means {
+        double simpson = 1.0, lower = 1.0, lo = 1.0, hi = 1.0;
+        bool weighted = false;  // some visible node has a kernel weight
+        int hidden = 0, emitting = 0;  // nodes an opaque obstacle hides; nodes with a weight
+    };
+    auto means = [&](const Cell& c) {
+        const int h = c.size / 2;
+        double sw = 0.0, swt = 0.0, lw = 0.0, lwt = 0.0;
+        Means m;
+        m.lo = 1.0, m.hi = 0.0;
+        for (int b = 0; b < 3; ++b) {
+            for (int a = 0; a < 3; ++a) {
+                const Node& nd = node(c.i0 + a * h, c.j0 + b * h);
+                if (nd.k > 0.0) ++m.emitting;
+                if (nd.hidden) {
+                    ++m.hidden;
+                    continue;
+                }
+                const double simpson = (a == 1 ? 4.0 : 1.0) * (b == 1 ? 4.0 : 1.0);
+                sw += simpson * nd.k, swt += simpson * nd.k * nd.t;
+                const bool corner = a != 1 && b != 1, centre = a == 1 && b == 1;
+                if (corner || centre) {
+                    const double five = centre ? 4.0 : 1.0;
+                    lw += five * nd.k, lwt += five * nd.k * nd.t;
+                }
+                m.lo = std::min(m.lo, nd.t), m.hi = std::max(m.hi, nd.t);
+            }
+        }
+        if (sw > 0.0) {
+            m.simpson = swt / sw, m.lower = lw > 0.0 ? lwt / lw : m.simpson, m.weighted = true;
+        }
+        if (m.hi < m.lo) m.lo = m.hi = 1.0;  // no visible node
+        return m;
+    };
     // The cells: split where the footprint is not resolved yet (a cell wider than half the
-    // footprint, so that a medium smaller than the light is sampled at 3 x 3 nodes at least) or
-    // where T varies more than the tolerance allows.
-    const double fullOpen = unoccludedFormFactor(light, r);
+    // footprint, so that a medium smaller than the light is sampled at 5 x 5 nodes at least) or
+    // where the two rules disagree by more than the tolerance allows.
     const double footSize = std::max(std::min(foot.u1, 1.0) - std::max(foot.u0, 0.0),
                                      std::min(foot.v1, 1.0) - std::max(foot.v0, 0.0));
     struct Attenuated {
         Cell cell;
-        double mean, spread;
+        Means m;
     };
     std::vector<Attenuated> attenuated;
     std::vector<Cell> work{{0, 0, n, 0}};
@@ -160,49 +227,55 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         work.pop_back();
         const double a0 = double(c.i0) / n, b0 = double(c.j0) / n, s = double(c.size) / n;
         if (!foot.meets(a0, b0, a0 + s, b0 + s)) continue;  // T = 1 on the whole cell
-        const double t[5] = {transmittanceAt(c.i0, c.j0), transmittanceAt(c.i0 + c.size, c.j0),
-                             transmittanceAt(c.i0, c.j0 + c.size),
-                             transmittanceAt(c.i0 + c.size, c.j0 + c.size),
-                             transmittanceAt(c.i0 + c.size / 2, c.j0 + c.size / 2)};
-        const double lo = *std::min_element(t, t + 5), hi = *std::max_element(t, t + 5);
-        const double open = unoccludedFormFactor(subLight(c), r);
-        const bool unresolved = s > 0.5 * footSize;
-        if (c.depth < depthCap && (unresolved || (hi - lo) * open > cubature.tolerance * fullOpen)) {
+        const Means m = means(c);
+        const double cellOpen = unoccludedFormFactor(subLight(c), r);
+        const bool unresolved = s > 0.5 * footSize || c.depth < kMinDepth;
+        const double change = std::abs(m.simpson - m.lower) * cellOpen;
+        if (c.depth < depthCap && (unresolved || change > cubature.tolerance * cellOpen)) {
             const int h = c.size / 2;
             for (int q = 0; q < 4; ++q)
                 work.push_back({c.i0 + (q & 1) * h, c.j0 + (q >> 1) * h, h, c.depth + 1});
             continue;
         }
-        const double mean = (t[0] + t[1] + t[2] + t[3] + 4.0 * t[4]) / 8.0;
-        if (lo == 1.0) continue;  // no attenuation seen: counted as T = 1
-        attenuated.push_back({c, mean, std::max(hi - mean, mean - lo)});
+        if (m.lo == 1.0 || !m.weighted) continue;  // no attenuation seen: counted as T = 1
+        attenuated.push_back({c, m});
     }
+    out.counts.secondLevelRays += transmittanceRays;  // shadow rays too
+    if (attenuated.empty()) return out;
     // F_T = F(light) - sum over attenuated cells of (1 - T) F(cell): the whole light once, then
     // only the cells the media dim. With no attenuation anywhere it is ACI on the light, exactly.
-    Estimate out = aci.evaluate(r, light, query);
-    out.pattern.clear();
-    if (attenuated.empty()) {
-        out.counts.secondLevelRays += transmittanceRays;
-        return out;
-    }
     for (const Attenuated& a : attenuated) {
-        AciSettings s = base;
-        s.grid = std::max(1, base.grid >> a.cell.depth);
-        aci.setSettings(s);
-        const Estimate e = aci.evaluate(r, subLight(a.cell), query);
-        const double w = 1.0 - a.mean;
+        Estimate e;
+        const RectLight cell = subLight(a.cell);
+        // A cell whose nine nodes are all hidden counts as hidden, one whose nodes are all
+        // visible as open (a rectangle light's cell then has its closed form); only cells
+        // whose nodes disagree, which the opaque contour crosses, take ACI of their own. An
+        // opaque feature between the nodes of a cell is still in F(light) exactly: it only
+        // misses its (1 - T) share here.
+        if (a.m.hidden == a.m.emitting) continue;
+        if (open || (a.m.hidden == 0 && light.shape == LightShape::Rect)) {
+            const GWithDerivative u = unoccludedG(cell, r);
+            e.formFactor = unoccludedFormFactor(cell, r);
+            e.g = u.g, e.dg = u.dg, e.errorBound = 0.0;
+        } else {
+            AciSettings s = base;
+            s.grid = std::max(1, base.grid >> a.cell.depth);
+            aci.setSettings(s);
+            e = aci.evaluate(r, cell, query);
+        }
+        const double w = 1.0 - a.m.simpson;
         out.formFactor -= w * e.formFactor;
         out.g -= w * e.g;
         out.dg -= w * e.dg;
         out.counts.merge(e.counts);
-        // T within the cell is within the spread of the mean that stands for it.
+        // T within the cell is within the spread of its nodes around the mean that stands for it.
+        const double spread = std::max(a.m.hi - a.m.simpson, a.m.simpson - a.m.lo);
         out.errorBound += w * (std::isfinite(e.errorBound) ? e.errorBound : 0.0) +
-                          a.spread * std::max(0.0, e.formFactor);
+                          spread * std::max(0.0, e.formFactor);
     }
     aci.setSettings(base);
     out.formFactor = std::max(0.0, out.formFactor);
     for (int k = 0; k < 3; ++k) out.gradient[k] = glm::dot(out.dg[k], r.normal);
-    out.counts.secondLevelRays += transmittanceRays;  // shadow rays too
     return out;
 }
 

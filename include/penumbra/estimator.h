@@ -94,25 +94,28 @@ Estimate estimate(Method method, const Receiver& r, const RectLight& light, Occl
 
 /// How finely aciThroughMedia() resolves the transmittance over the light.
 struct MediaCubature {
-    /// A cell of the light is split while its transmittance varies (largest minus smallest of
-    /// its five nodes) by more than this fraction of the light's unoccluded form factor,
-    /// weighted by the cell's share of it.
-    double tolerance = 0.002;
-    int maxDepth = 3;  ///< at most 4^maxDepth cells
+    /// A cell of the light is split while its Simpson mean of T (kernel-weighted, over its
+    /// 3 x 3 nodes) and its five-point mean (corners and centre) differ by more than this.
+    double tolerance = 0.0005;
+    int maxDepth = 3;  ///< at most 4^maxDepth cells (and (2^(maxDepth+1) + 1)^2 nodes)
 };
 
 /// ACI through participating media: F = integral over the visible light of T dF, T the
 /// transmittance of the ray from the receiver to the light point. Written as
 /// F = F_visible(light) - sum over cells of (1 - T_cell) F_visible(cell): ACI on the whole light
-/// once, then on each cell of the light that the media dim, as a light of its own (closed-form
-/// contour integrals, so opaque silhouettes stay exact), weighted by the cell's mean T. Cells
-/// come from an adaptive quadtree: outside the media's footprint (their bounding box projected
-/// from the receiver onto the light) T = 1 without a ray; inside, cells are split until they
-/// are at most half the footprint's size, and further while T at their five nodes (corners and
-/// centre, shared between neighbours) varies by more than the tolerance. Where no node is dimmed
-/// the answer is ACI on the light, unchanged. The gradient leaves out T's own derivative; the
-/// error bound adds each cell's T spread times its visible form factor. Limit: a medium feature
-/// much smaller than the finest cell (light edge / 2^maxDepth) between nodes can be missed.
+/// once (closed-form contour integrals, so opaque silhouettes stay exact), then, over an
+/// adaptive quadtree of cells of the light, each cell's kernel-weighted mean T by the tensor
+/// Simpson rule on its 3 x 3 nodes (shared between neighbours, one ray each), split at least
+/// into 4 x 4 cells, further while the cell is wider than half the media's footprint (their
+/// bounding box projected from the receiver onto the light; outside it T = 1 without a ray) or
+/// while its Simpson and five-point means differ by more than the tolerance. A cell's visible
+/// form factor is its closed form when the whole light is visible (or all its nodes are, on a
+/// rectangle light), 0 when all its nodes are hidden, and ACI on the cell as a light of its own
+/// where its nodes disagree. Where no node is dimmed the answer is ACI on the light, unchanged.
+/// The gradient leaves out T's own derivative; the error bound adds each cell's T spread times
+/// its visible form factor. Limits: a medium feature much smaller than the finest cell (light
+/// edge / 2^maxDepth) between nodes can be missed, and an opaque feature between a cell's nodes
+/// misses its (1 - T) share (it is in F_visible(light) exactly).
 Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLight& light,
                          Occluder::Query& query, const MediaCubature& cubature = {});
 
