@@ -249,28 +249,6 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
         }
     }
     arc.probed = true;
-    if (peek(q) != kVisible) {
-        // A hidden shoulder sample: the contour crosses the line beyond it, toward K, where a
-        // step from inside is unreliable (near a silhouette's corner the depth is one face's).
-        // The lattice point nearest K decides: hidden there too, the corner is sharp (to the
-        // lattice's resolution); visible, a step from it (outside, exact) places the shoulder.
-        const Vec3 mk = arc.k - m;
-        auto along = [&](LatticePoint p) { return glm::dot(pointOf(p) - m, mk) / glm::dot(mk, mk); };
-        const LatticePoint qk{std::clamp(static_cast<int>(std::lround(ku * N)), x0, x0 + s),
-                              std::clamp(static_cast<int>(std::lround(kv * N)), y0, y0 + s)};
-        const double lq = along(q);
-        lambda = std::max(lambda, lq);
-        if ((qk.a != q.a || qk.b != q.b) && sample(qk, false) != kBelowHorizon) {
-            if (peek(qk) != kVisible) {
-                lambda = 1.0;
-            } else {
-                const double again = newtonAlong(qk, m, mk);
-                const double lk = along(qk);
-                lambda = std::isfinite(again) ? std::clamp(again, lq, std::max(lq, lk))
-                                              : 0.5 * (lq + lk);
-            }
-        }
-    }
     const double l = std::clamp(lambda, 0.0, 1.0);
     if (l <= 0.02) {
         arc.straight = true;
