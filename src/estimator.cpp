@@ -228,10 +228,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         const double a0 = double(c.i0) / n, b0 = double(c.j0) / n, s = double(c.size) / n;
         if (!foot.meets(a0, b0, a0 + s, b0 + s)) continue;  // T = 1 on the whole cell
         const Means m = means(c);
-        const double cellOpen = unoccludedFormFactor(subLight(c), r);
         const bool unresolved = s > 0.5 * footSize || c.depth < kMinDepth;
-        const double change = std::abs(m.simpson - m.lower) * cellOpen;
-        if (c.depth < depthCap && (unresolved || change > cubature.tolerance * cellOpen)) {
+        if (c.depth < depthCap && (unresolved || std::abs(m.simpson - m.lower) > cubature.tolerance)) {
             const int h = c.size / 2;
             for (int q = 0; q < 4; ++q)
                 work.push_back({c.i0 + (q & 1) * h, c.j0 + (q >> 1) * h, h, c.depth + 1});
@@ -254,9 +252,12 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         // misses its (1 - T) share here.
         if (a.m.hidden == a.m.emitting) continue;
         if (open || (a.m.hidden == 0 && light.shape == LightShape::Rect)) {
-            const GWithDerivative u = unoccludedG(cell, r);
             e.formFactor = unoccludedFormFactor(cell, r);
-            e.g = u.g, e.dg = u.dg, e.errorBound = 0.0;
+            e.errorBound = 0.0;
+            if (base.gradient) {
+                const GWithDerivative u = unoccludedG(cell, r);
+                e.g = u.g, e.dg = u.dg;
+            }
         } else {
             AciSettings s = base;
             s.grid = std::max(1, base.grid >> a.cell.depth);
