@@ -212,8 +212,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         return m;
     };
     // The cells: split where the footprint is not resolved yet (a cell wider than half the
-    // footprint, so that a medium smaller than the light is sampled at 5 x 5 nodes at least) or
-    // where the two rules disagree by more than the tolerance allows.
+    // footprint, so that a medium smaller than the light is sampled at 5 x 5 nodes at least),
+    // below the least depth, or where the two rules disagree by more than the tolerance.
     const double footSize = std::max(std::min(foot.u1, 1.0) - std::max(foot.u0, 0.0),
                                      std::min(foot.v1, 1.0) - std::max(foot.v0, 0.0));
     struct Attenuated {
@@ -229,7 +229,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         if (!foot.meets(a0, b0, a0 + s, b0 + s)) continue;  // T = 1 on the whole cell
         const Means m = means(c);
         const bool unresolved = s > 0.5 * footSize || c.depth < kMinDepth;
-        if (c.depth < depthCap && (unresolved || std::abs(m.simpson - m.lower) > cubature.tolerance)) {
+        const bool varies = std::abs(m.simpson - m.lower) > cubature.tolerance;
+        if (c.depth < depthCap && (unresolved || varies)) {
             const int h = c.size / 2;
             for (int q = 0; q < 4; ++q)
                 work.push_back({c.i0 + (q & 1) * h, c.j0 + (q >> 1) * h, h, c.depth + 1});
