@@ -2,7 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <map>
+#include <vector>
 
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
@@ -145,12 +145,10 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         if (nd.t >= 0.0) return nd;
         const double u = double(i) / n, v = double(j) / n;
         const Vec3 p = light.point(u, v);
-        const Vec3 d = p - r.point;
-        const double up = glm::dot(d, r.normal);
         nd.t = 1.0;
-        if (up > 0.0 && (light.shape == LightShape::Rect || light.contains(p))) {
-            const double d2 = glm::dot(d, d);
-            nd.k = up * std::abs(glm::dot(d, lightNormal)) / (d2 * d2);
+        if (light.shape == LightShape::Rect || light.contains(p))
+            nd.k = formFactorDensity(r, lightNormal, p);
+        if (nd.k > 0.0) {
             const uint64_t before = query.raysCast();
             if (!open) {
                 nd.t = query.transmitted(origin, p);
@@ -178,7 +176,7 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
     // (weights 1 and 4; exact for T k bilinear). Their difference estimates the Simpson mean's
     // error.
     struct Means {
-        double simpson = 1.0, lower = 1.0, lo = 1.0, hi = 1.0;
+        double simpson = 1.0, lower = 1.0, lo = 1.0, hi = 0.0;  // lo, hi: over visible nodes
         bool weighted = false;  // some visible node has a kernel weight
         int hidden = 0, emitting = 0;  // nodes an opaque obstacle hides; nodes with a weight
     };
@@ -186,7 +184,6 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         const int h = c.size / 2;
         double sw = 0.0, swt = 0.0, lw = 0.0, lwt = 0.0;
         Means m;
-        m.lo = 1.0, m.hi = 0.0;
         for (int b = 0; b < 3; ++b) {
             for (int a = 0; a < 3; ++a) {
                 const Node& nd = node(c.i0 + a * h, c.j0 + b * h);

@@ -368,6 +368,15 @@ bool facesLight(const RectLight& light, const Vec3& m) {
     return glm::dot(m - light.corner, glm::cross(light.edgeU, light.edgeV)) > 0.0;
 }
 
+double formFactorDensity(const Receiver& r, const Vec3& lightNormal, const Vec3& p) {
+    const Vec3 c = p - r.point;
+    const double r2 = glm::dot(c, c);
+    const double cosM = glm::dot(c, r.normal);
+    const double cosL = -glm::dot(c, lightNormal);
+    if (!(cosM > 0.0) || !(cosL > 0.0) || !(r2 > 0.0)) return 0.0;
+    return cosM * cosL / (kPi * r2 * r2);
+}
+
 double unoccludedFormFactor(const RectLight& light, const Receiver& r) {
     if (!facesLight(light, r.point)) return 0.0;
     if (light.shape == LightShape::Disc) return std::max(0.0, glm::dot(discG(light, r).g, r.normal));

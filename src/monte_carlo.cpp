@@ -338,12 +338,7 @@ struct Setup {
 // (the differential form factor times the light's area), 0 below M's horizon or behind the
 // light. Its mean over uniform points of the light is the unoccluded form factor.
 double areaIntegrand(const Setup& s, const Vec3& p) {
-    const Vec3 c = p - s.m;
-    const double r2 = glm::dot(c, c);
-    const double cosM = glm::dot(c, s.n);
-    const double cosL = -glm::dot(c, s.lightNormal);
-    if (!(cosM > 0.0) || !(cosL > 0.0) || !(r2 > 0.0)) return 0.0;
-    return cosM * cosL * s.area / (kPi * r2 * r2);
+    return formFactorDensity(Receiver{s.m, s.n}, s.lightNormal, p) * s.area;
 }
 
 // The light that reaches M from P: 0 when an obstacle blocks the ray, else its transmittance

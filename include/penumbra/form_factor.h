@@ -115,6 +115,11 @@ Vec3 polygonG(const std::vector<Vec3>& polygonWS, const Vec3& m);
 /// vertices (nothing above the horizon).
 std::vector<Vec3> clipToHorizon(const std::vector<Vec3>& polygonWS, const Receiver& r);
 
+/// The form factor's density at point p of a light of unit normal `lightNormal`, per unit of
+/// the light's area: cos(theta_M) cos(theta_L) / (pi r^2); 0 below M's horizon or behind the
+/// light. Its integral over the light is the unoccluded form factor.
+double formFactorDensity(const Receiver& r, const Vec3& lightNormal, const Vec3& p);
+
 /// Unoccluded form factor from (M, n) to the light, clipped by the tangent plane; zero when M is
 /// behind the light (on the non-emitting side) or the light is wholly below the horizon.
 double unoccludedFormFactor(const RectLight& light, const Receiver& r);
