@@ -250,12 +250,16 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         // misses its (1 - T) share here.
         if (a.m.hidden == a.m.emitting) continue;
         if (open || (a.m.hidden == 0 && light.shape == LightShape::Rect)) {
-            e.formFactor = unoccludedFormFactor(cell, r);
-            e.errorBound = 0.0;
+            // G always (the renderer interpolates it), its Jacobian only when asked for.
             if (base.gradient) {
                 const GWithDerivative u = unoccludedG(cell, r);
                 e.g = u.g, e.dg = u.dg;
+            } else if (facesLight(cell, r.point)) {
+                const std::vector<Vec3> poly = clipToHorizon(cell.polygon(), r);
+                if (poly.size() >= 3) e.g = polygonG(poly, r.point);
             }
+            e.formFactor = std::max(0.0, glm::dot(e.g, r.normal));
+            e.errorBound = 0.0;
         } else {
             AciSettings s = base;
             s.grid = std::max(1, base.grid >> a.cell.depth);

@@ -396,6 +396,19 @@ Vec3 gradientOf(const Mat3& dg, const Vec3& n) {
     return Vec3(glm::dot(dg[0], n), glm::dot(dg[1], n), glm::dot(dg[2], n));
 }
 
+// The quadratic through (x0, v0), (xm, vm), (x1, v1) at x (Lagrange).
+Vec3 lagrange(int x, int x0, const Vec3& v0, int xm, const Vec3& vm, int x1, const Vec3& v1) {
+    const double t = x, t0 = x0, tm = xm, t1 = x1;
+    const double w0 = (t - tm) * (t - t1) / ((t0 - tm) * (t0 - t1));
+    const double wm = (t - t0) * (t - t1) / ((tm - t0) * (tm - t1));
+    const double w1 = (t - t0) * (t - tm) / ((t1 - t0) * (t1 - tm));
+    return w0 * v0 + wm * vm + w1 * v1;
+}
+
+// Through media, how far (relative to the unoccluded form factor) the checked quadratic may miss
+// a quarter point for its interval to be interpolated (SpanShader::shadeMediaRun).
+constexpr double kMediaInterpolationTolerance = 0.0005;
+
 bool uniformPattern(const std::vector<uint8_t>& p) {
     return std::all_of(p.begin(), p.end(), [&](uint8_t v) { return v == p.front(); });
 }
@@ -497,12 +510,38 @@ public:
 
         mTs.shadow.restrictTo(&cand);
         mTs.shadow.restrictMediaTo(&media);
-        if (isMonteCarlo(mSettings.method) || !media.empty()) {
+        if (isMonteCarlo(mSettings.method)) {
             // One estimate per pixel that needs rays: the same pixels as the ACI pipeline's.
-            // Through media, ACI too evaluates every such pixel (aciThroughMedia): its cells
-            // follow the transmittance, which pattern coherence does not see.
             for (int x = x0; x <= x1; ++x) {
                 if (mTs.lit[size_t(x - x0)] == kNeedsRays) monteCarlo(x);
+            }
+            mTs.shadow.restrictTo(nullptr);
+            mTs.shadow.restrictMediaTo(nullptr);
+            return;
+        }
+        if (!media.empty()) {
+            // Through media ACI evaluates a pixel with aciThroughMedia, whose cells follow the
+            // transmittance, which shadow patterns do not see. Runs of pixels that no opaque
+            // candidate can shadow are shaded by checked interpolation (shadeMediaRun); every
+            // other pixel is evaluated.
+            int x = x0;
+            while (x <= x1) {
+                if (mTs.lit[size_t(x - x0)] != kNeedsRays) {
+                    ++x;
+                    continue;
+                }
+                if (!mSettings.coherence || !opaqueFree(x, cand, lightBox, pad)) {
+                    monteCarlo(x);
+                    ++x;
+                    continue;
+                }
+                int end = x;
+                while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)] == kNeedsRays &&
+                       opaqueFree(end + 1, cand, lightBox, pad)) {
+                    ++end;
+                }
+                shadeMediaRun(x, end);
+                x = end + 1;
             }
             mTs.shadow.restrictTo(nullptr);
             mTs.shadow.restrictMediaTo(nullptr);
@@ -558,9 +597,80 @@ private:
                    : mSettings.aci.rayOffset;
     }
 
+    // Whether no opaque candidate's bounds meet pixel x's own shaft (its ray origins to the
+    // light): the pixel then sees the whole light but for the media.
+    bool opaqueFree(int x, const std::vector<uint32_t>& cand, const Box3& lightBox,
+                    double pad) const {
+        if (cand.empty()) return true;
+        if (!mSettings.shaftCulling) return false;
+        Box3 origin;
+        origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
+        origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
+        Shaft pixelShaft(origin, lightBox);
+        return std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
+            return pixelShaft.overlaps(mCtx.occluder.bounds(i));
+        });
+    }
+
+    // Pixels [x0, x1] of a span, each seeing the whole light but for the media: their shadow is
+    // the transmittance's, smooth in the receiver wherever the media are. Evaluated at both
+    // ends and the middle; an interval [l, r] with its middle m evaluated is interpolated
+    // (Lagrange, as pattern coherence does) only after a check: its quarter points q are
+    // evaluated and the quadratic through l, m, r must predict each within
+    // kMediaInterpolationTolerance x the unoccluded form factor there. The pixels are then
+    // interpolated through l, q, m and m, q, r (half the step of the checked quadratic);
+    // otherwise each half is checked the same way, down to evaluating every pixel.
+    void shadeMediaRun(int x0, int x1) {
+        if (x1 - x0 < 4) {
+            for (int x = x0; x <= x1; ++x) monteCarlo(x);
+            return;
+        }
+        const int m = (x0 + x1) / 2;
+        const Sample a = monteCarlo(x0), b = monteCarlo(x1), mid = monteCarlo(m);
+        refineMediaRun(x0, a, m, mid, x1, b);
+    }
+
+    void refineMediaRun(int l, const Sample& sl, int m, const Sample& sm, int r,
+                        const Sample& sr) {
+        const bool left = m - l >= 2, right = r - m >= 2;
+        if (!left && !right) return;
+        const int q0 = (l + m) / 2, q1 = (m + r) / 2;
+        Sample s0, s1;
+        double miss = 0.0;  // the checked quadratic's largest miss, relative
+        if (left) {
+            s0 = monteCarlo(q0);
+            miss = std::max(miss, predictionMiss(q0, s0, l, sl, m, sm, r, sr));
+        }
+        if (right) {
+            s1 = monteCarlo(q1);
+            miss = std::max(miss, predictionMiss(q1, s1, l, sl, m, sm, r, sr));
+        }
+        if (miss <= kMediaInterpolationTolerance) {
+            for (int i = l + 1; i < m; ++i) {
+                if (i != q0) interpolate(i, l, sl, q0, s0, m, sm);
+            }
+            for (int i = m + 1; i < r; ++i) {
+                if (i != q1) interpolate(i, m, sm, q1, s1, r, sr);
+            }
+            return;
+        }
+        if (left) refineMediaRun(l, sl, q0, s0, m, sm);
+        if (right) refineMediaRun(m, sm, q1, s1, r, sr);
+    }
+
+    // |F(q) - the quadratic through l, m, r at q| over the unoccluded form factor at q.
+    double predictionMiss(int q, const Sample& sq, int l, const Sample& sl, int m,
+                          const Sample& sm, int r, const Sample& sr) const {
+        const Vec3 n = mTs.hits[size_t(q)].normal;
+        const Vec3 g = lagrange(q, l, sl.g, m, sm.g, r, sr.g);
+        const double open = unoccludedFormFactor(mLight, receiver(q));
+        const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(sq.g, n));
+        return open > 0.0 ? diff / open : (diff > 0.0 ? HUGE_VAL : 0.0);
+    }
+
     // One estimate at pixel x through estimate(): a Monte Carlo method (seeded by the pixel and
-    // the light only), or ACI through media.
-    void monteCarlo(int x) {
+    // the light only), or ACI through media. Returns what interpolation needs of it.
+    Sample monteCarlo(int x) {
         McSettings s = mSettings.mc;
         s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
@@ -578,6 +688,7 @@ private:
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
+        return Sample{e.g, e.gradient, e.errorBound, {}, 0};
     }
 
     Estimate evaluate(int x, bool adapt) {
@@ -687,16 +798,13 @@ private:
     // projected on the pixel's own normal (Vedel 1993, section 5), and of the gradient.
     void interpolate(int i, int x0, const Sample& s0, int xm, const Sample& sm, int x1,
                      const Sample& s1) {
-        double t = i, t0 = x0, tm = xm, t1 = x1;
-        double w0 = (t - tm) * (t - t1) / ((t0 - tm) * (t0 - t1));
-        double wm = (t - t0) * (t - t1) / ((tm - t0) * (tm - t1));
-        double w1 = (t - t0) * (t - tm) / ((t1 - t0) * (t1 - tm));
-        Vec3 g = w0 * s0.g + wm * sm.g + w1 * s1.g;
-        Vec3 grad = w0 * s0.gradient + wm * sm.gradient + w1 * s1.gradient;
+        Vec3 g = lagrange(i, x0, s0.g, xm, sm.g, x1, s1.g);
+        Vec3 grad = lagrange(i, x0, s0.gradient, xm, sm.gradient, x1, s1.gradient);
         double f = std::max(0.0, glm::dot(g, mTs.hits[size_t(i)].normal));
         // The samples' largest bound (an interpolated pixel's is not certified by rays of its
         // own; docs/estimator.md).
         store(i, f, grad, std::max({s0.errorBound, sm.errorBound, s1.errorBound}));
+        mTs.sums[size_t(i)].shadowed = true;
         ++mTs.stats.interpolatedPixels;
     }
 

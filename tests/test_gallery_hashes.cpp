@@ -42,7 +42,9 @@ struct GalleryCase {
 // threads. The default mode's rows (and the fog's) rewritten on 2026-11-27 when level-set
 // clearances were polished past sharp edges (the paper's and Monte Carlo's rows unchanged), and
 // the fog's again when its cubature became a Simpson rule, and every default-mode row again when
-// the grazing normal's two gradients moved from two to three voxels off the closest point.
+// the grazing normal's two gradients moved from two to three voxels off the closest point, and the
+// fog's once more when pixels no opaque obstacle can shadow were interpolated along spans after
+// a check (renderer.cpp, shadeMediaRun).
 const GalleryCase kCases[] = {
     {"default", "", "81634d9cc6358888"},
     {"default", "--aci-mode paper", "51cf2532df25c8c0"},
@@ -53,7 +55,7 @@ const GalleryCase kCases[] = {
     {"csg", "", "953ae7652c4e14f0"},
     {"vdb_tool", "", "2762e61c636ca3c2"},
     {"bunny", "", "c88e5475236a501a"},
-    {"fog", "", "1fe5e6dabd98370d"},
+    {"fog", "", "5884bfa2f53e24ff"},
 };
 
 }  // namespace
