@@ -54,40 +54,50 @@ double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const
 bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size, int own,
                                             const Vec3& centre) const {
     // Most discs are far from most cells: a disc that cannot reach the cell's centre plus the
-    // cell's reach holds none of its points. When no disc can and the centre is above the
-    // horizon (so that some corner is), the answer is no without the corners.
-    bool near = false;
-    for (const Disc& d : scratch.mDiscs) {
-        if (mayHold(d, glm::length(centre - d.c), size * cellReach, own)) {
-            near = true;
-            break;
+    // cell's reach holds none of its points (mayHold, compared squared here), and only the
+    // others are checked point by point. The points (the cell's corners above the horizon and
+    // the horizon's crossings of its sides) are found once, when a disc first may hold them.
+    const double reach = size * cellReach;
+    Vec3 pts[8] = {};
+    int n = -1;  // not found yet
+    auto findPoints = [&] {
+        const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
+                           light.point((a0 + size) / N, (b0 + size) / N),
+                           light.point(a0 / N, (b0 + size) / N)};
+        double h[4];
+        for (int i = 0; i < 4; ++i) h[i] = above(q[i]);
+        n = 0;
+        for (int i = 0; i < 4; ++i) {
+            const int j = (i + 1) & 3;
+            if (h[i] > 0.0) pts[n++] = q[i];
+            if ((h[i] > 0.0) != (h[j] > 0.0))
+                pts[n++] = q[i] + (h[i] / (h[i] - h[j])) * (q[j] - q[i]);
         }
-    }
-    if (!near && above(centre) > 1e-9 * unit) return false;
-    Vec3 pts[8];
-    int n = 0;
-    const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
-                       light.point((a0 + size) / N, (b0 + size) / N),
-                       light.point(a0 / N, (b0 + size) / N)};
-    double h[4];
-    for (int i = 0; i < 4; ++i) h[i] = above(q[i]);
-    for (int i = 0; i < 4; ++i) {
-        const int j = (i + 1) & 3;
-        if (h[i] > 0.0) pts[n++] = q[i];
-        if ((h[i] > 0.0) != (h[j] > 0.0)) pts[n++] = q[i] + (h[i] / (h[i] - h[j])) * (q[j] - q[i]);
-    }
-    if (n == 0) return true;  // below the horizon: hidden, no ray needed
+    };
     for (const Disc& d : scratch.mDiscs) {
         const double r = own >= 0 && d.obstacle == own ? std::max(d.r, d.ro) : d.r;
+        if (!(r > 0.0)) continue;
+        const double bound = (r + reach) * (1.0 + 1e-9) + 1e-6 * unit;
+        const Vec3 e0 = centre - d.c;
+        if (glm::dot(e0, e0) > bound * bound) continue;  // mayHold() false
+        if (n < 0) {
+            findPoints();
+            if (n == 0) return true;  // below the horizon: hidden, no ray needed
+        }
         const double r2 = r * r;
-        bool all = r2 > 0.0;
+        bool all = true;
         for (int i = 0; i < n && all; ++i) {
             const Vec3 e = pts[i] - d.c;
             all = glm::dot(e, e) < r2;
         }
         if (all) return true;
     }
-    return false;
+    // No disc holds it; a cell wholly below the horizon needs none.
+    if (n < 0) {
+        if (above(centre) > 1e-9 * unit) return false;  // some corner is above
+        findPoints();
+    }
+    return n == 0;
 }
 
 // False when disc d, `dist` from a cell's centre, holds no point within `reach` of that centre
@@ -243,10 +253,14 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
             scratch.mDiscs.assign(1, d);
             size_t kept = 0;
             for (Uncovered& u : cells) {
-                if (cellInDisc(u.a0, u.b0, u.size, -1, u.centre) ||
-                    (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own, u.centre)))
+                // A disc too far to hold any of the cell (with the larger radius its band
+                // allows) only narrows its gap.
+                const double dist = glm::length(u.centre - d.c);
+                if (mayHold(d, dist, u.size * cellReach, u.own) &&
+                    (cellInDisc(u.a0, u.b0, u.size, -1, u.centre) ||
+                     (u.own >= 0 && cellInDisc(u.a0, u.b0, u.size, u.own, u.centre))))
                     continue;
-                gapTo(u, d, glm::length(u.centre - d.c));
+                gapTo(u, d, dist);
                 cells[kept++] = u;
             }
             cells.resize(kept);
