@@ -333,6 +333,7 @@ struct ThreadState {
     std::vector<uint32_t> mediaCandidates;  // media in the span's shaft
     std::vector<uint32_t> single{0};
     std::vector<uint8_t> lit;
+    std::vector<uint8_t> opaqueFree;  // per pixel of the span: no opaque candidate in its shaft
 };
 
 Rgb planeAlbedo(const PlaneReceiver& plane, const Vec3& p) {
@@ -483,22 +484,26 @@ public:
         // The span's shaft is as wide as the span; each pixel's own shaft (its ray origins to
         // the light) is narrower. A pixel whose shaft meets no candidate is unshadowed: the
         // closed form is then exactly what ACI would find, without a ray.
+        // Which pixels no opaque candidate can shadow is kept for media (shadeMediaRun).
+        mTs.opaqueFree.assign(size_t(x1 - x0 + 1), 0);
         for (int x = x0; x <= x1; ++x) {
             uint8_t& state = mTs.lit[size_t(x - x0)];
             if (state != kNeedsRays) continue;
-            bool open = cand.empty() && media.empty();
-            if (!open && mSettings.shaftCulling) {
+            bool noOpaque = cand.empty(), noMedia = media.empty();
+            if (!(noOpaque && noMedia) && mSettings.shaftCulling) {
                 Box3 origin;
                 origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
                 origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
                 Shaft pixelShaft(origin, lightBox);
-                open = std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
+                noOpaque = std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
                     return pixelShaft.overlaps(mCtx.occluder.bounds(i));
-                }) && std::none_of(media.begin(), media.end(), [&](uint32_t i) {
+                });
+                noMedia = std::none_of(media.begin(), media.end(), [&](uint32_t i) {
                     return pixelShaft.overlaps(mCtx.occluder.mediumBounds(i));
                 });
             }
-            if (!open) continue;
+            mTs.opaqueFree[size_t(x - x0)] = noOpaque;
+            if (!(noOpaque && noMedia)) continue;
             state = kClosedForm;
             Receiver r = receiver(x);
             Vec3 grad(0.0);
@@ -513,7 +518,7 @@ public:
         if (isMonteCarlo(mSettings.method)) {
             // One estimate per pixel that needs rays: the same pixels as the ACI pipeline's.
             for (int x = x0; x <= x1; ++x) {
-                if (mTs.lit[size_t(x - x0)] == kNeedsRays) monteCarlo(x);
+                if (mTs.lit[size_t(x - x0)] == kNeedsRays) estimateAt(x);
             }
             mTs.shadow.restrictTo(nullptr);
             mTs.shadow.restrictMediaTo(nullptr);
@@ -530,14 +535,14 @@ public:
                     ++x;
                     continue;
                 }
-                if (!mSettings.coherence || !opaqueFree(x, cand, lightBox, pad)) {
-                    monteCarlo(x);
+                if (!mSettings.coherence || !mTs.opaqueFree[size_t(x - x0)]) {
+                    estimateAt(x);
                     ++x;
                     continue;
                 }
                 int end = x;
                 while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)] == kNeedsRays &&
-                       opaqueFree(end + 1, cand, lightBox, pad)) {
+                       mTs.opaqueFree[size_t(end + 1 - x0)]) {
                     ++end;
                 }
                 shadeMediaRun(x, end);
@@ -569,7 +574,7 @@ public:
         mGrid = mSettings.aci.grid;
         mTs.shadow.restrictTo(nullptr);
         if (mCtx.occluder.mediumCount() > 0) {
-            monteCarlo(x);  // estimate(): aciThroughMedia where media lie in between
+            estimateAt(x);  // estimate(): aciThroughMedia where media lie in between
             return;
         }
         Estimate e = evaluate(x, /*adapt=*/false);
@@ -597,21 +602,6 @@ private:
                    : mSettings.aci.rayOffset;
     }
 
-    // Whether no opaque candidate's bounds meet pixel x's own shaft (its ray origins to the
-    // light): the pixel then sees the whole light but for the media.
-    bool opaqueFree(int x, const std::vector<uint32_t>& cand, const Box3& lightBox,
-                    double pad) const {
-        if (cand.empty()) return true;
-        if (!mSettings.shaftCulling) return false;
-        Box3 origin;
-        origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
-        origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
-        Shaft pixelShaft(origin, lightBox);
-        return std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
-            return pixelShaft.overlaps(mCtx.occluder.bounds(i));
-        });
-    }
-
     // Pixels [x0, x1] of a span, each seeing the whole light but for the media: their shadow is
     // the transmittance's, smooth in the receiver wherever the media are. Evaluated at both
     // ends and the middle; an interval [l, r] with its middle m evaluated is interpolated
@@ -622,11 +612,11 @@ private:
     // otherwise each half is checked the same way, down to evaluating every pixel.
     void shadeMediaRun(int x0, int x1) {
         if (x1 - x0 < 4) {
-            for (int x = x0; x <= x1; ++x) monteCarlo(x);
+            for (int x = x0; x <= x1; ++x) estimateAt(x);
             return;
         }
         const int m = (x0 + x1) / 2;
-        const Sample a = monteCarlo(x0), b = monteCarlo(x1), mid = monteCarlo(m);
+        const Sample a = estimateAt(x0), b = estimateAt(x1), mid = estimateAt(m);
         refineMediaRun(x0, a, m, mid, x1, b);
     }
 
@@ -638,11 +628,11 @@ private:
         Sample s0, s1;
         double miss = 0.0;  // the checked quadratic's largest miss, relative
         if (left) {
-            s0 = monteCarlo(q0);
+            s0 = estimateAt(q0);
             miss = std::max(miss, predictionMiss(q0, s0, l, sl, m, sm, r, sr));
         }
         if (right) {
-            s1 = monteCarlo(q1);
+            s1 = estimateAt(q1);
             miss = std::max(miss, predictionMiss(q1, s1, l, sl, m, sm, r, sr));
         }
         if (miss <= kMediaInterpolationTolerance) {
@@ -669,8 +659,8 @@ private:
     }
 
     // One estimate at pixel x through estimate(): a Monte Carlo method (seeded by the pixel and
-    // the light only), or ACI through media. Returns what interpolation needs of it.
-    Sample monteCarlo(int x) {
+    // the light only), or ACI through media. Stores it and returns what interpolation needs.
+    Sample estimateAt(int x) {
         McSettings s = mSettings.mc;
         s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
