@@ -35,12 +35,20 @@ Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
     double tHit = 0.0;
     Clearance c;
     const bool hidden = query.occluded(origin, target, &tHit, measure ? &c : nullptr);
+    out.blocker = hidden ? query.lastBlocker() : -1;
     recordClearance(c, glm::length(target - origin), out.clear, out.geometry);
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0))
                         : kVisible;
     if (settings.coverage && want > 0.0) query.certify(origin, target, hidden, tHit, want, out.cert);
     return out;
+}
+
+// The values of `v`, sorted, each once.
+std::vector<uint32_t> distinct(std::vector<uint32_t> v) {
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+    return v;
 }
 
 }  // namespace
@@ -66,6 +74,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     scratch.mTracedDiscs.clear();
     scratch.mAllTraced.clear();
     scratch.mMarked.clear();
+    scratch.mBlockers.clear();
     if (scratch.mStamp.size() < size) {
         scratch.mStamp.assign(size, 0);
         scratch.mSample.assign(size, 0.0f);
@@ -132,6 +141,10 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     clear = ray.clear;
     if (self.mSettings.tangentContour) scratch.mGeometry[idx] = ray.geometry;
     s = ray.sample;
+    if (ray.blocker >= 0) {
+        const auto b = static_cast<uint32_t>(ray.blocker);
+        if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
+    }
     if (self.mSettings.coverage) {
         scratch.mCert[idx] = ray.cert;
         const Certificate& c = ray.cert;
@@ -211,8 +224,10 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 sum.errorBound += e.errorBound;
                 sum.counts.merge(e.counts);
                 sum.pattern.insert(sum.pattern.end(), e.pattern.begin(), e.pattern.end());
+                sum.blockers.insert(sum.blockers.end(), e.blockers.begin(), e.blockers.end());
             }
             mFanPiece = false;
+            sum.blockers = distinct(std::move(sum.blockers));
             return sum;
         }
     }
@@ -237,6 +252,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
         est.errorBound = mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
         est.counts = lat.counts;
+        est.blockers = distinct(sc.mBlockers);
         return est;
     }
     int level = 0;
@@ -301,6 +317,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
     if (mSettings.coverage && mSettings.errorBound) est.errorBound = lat.bound;
     est.counts = lat.counts;
+    est.blockers = distinct(sc.mBlockers);
     return est;
 }
 

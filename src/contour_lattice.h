@@ -44,6 +44,7 @@ struct Corner {
     float sample = 0.0f, clear = 0.0f;
     RayGeometry geometry;
     Certificate cert;  // with AciSettings::coverage
+    int blocker = -1;  // the obstacle that blocked it (Occluder::Query::lastBlocker)
     // Whether this ray's answer holds for a ray from `from` to the same light point.
     bool answers(const Vec3& from) const {
         return bound != 0.0 && glm::length(from - origin) < std::abs(bound);
@@ -129,6 +130,7 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
     std::vector<Disc> mTracedDiscs;  // coverage: their discs, in the same order
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
+    std::vector<uint32_t> mBlockers;   // the obstacles that blocked rays this time (repeats)
     uint32_t mGeneration = 0;
 };
 

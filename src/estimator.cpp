@@ -62,10 +62,18 @@ Estimate estimate(Method method, const Receiver& r, const RectLight& light, Occl
             if (query.mediaBetween(origin, target)) return aciThroughMedia(aci, r, light, query);
             return aci.evaluate(r, light, query);
         }
+        default: break;
+    }
+    // Monte Carlo rays aim at the light itself: obstacles outside the pyramid of the receiver
+    // and the light cannot block them, so the queries skip them.
+    NarrowedQuery narrowed(query, Pyramid(r.point, std::abs(s.rayOffset) * (1.0 + 1e-6),
+                                          light.polygon()));
+    switch (method) {
         case Method::Reference: return monteCarloReference(r, light, query, s);
         case Method::McAdaptive: return monteCarloAdaptive(r, light, query, s);
         case Method::McSolidAngle: return monteCarloSolidAngle(r, light, query, s);
         case Method::McRatio: return monteCarloRatio(r, light, query, s);
+        default: break;
     }
     return Estimate{};
 }

@@ -94,6 +94,60 @@ LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
         const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
         mBoundsWS.extend(Vec3(p.x(), p.y(), p.z()));
     }
+    findSolid();
+}
+
+void LevelSet::findSolid() {
+    // Index space first (voxels are uniform: world distances are index distances times the
+    // voxel size), then the box's corners and the centre mapped to world space.
+    openvdb::Vec3d lo(1e300), hi(-1e300);
+    bool any = false;
+    for (auto it = mGrid->cbeginValueOn(); it; ++it) {
+        if (!(*it <= 0.0f)) continue;
+        openvdb::CoordBBox box;
+        it.getBoundingBox(box);  // one voxel, or a tile's voxels
+        lo = openvdb::math::minComponent(lo, box.min().asVec3d());
+        hi = openvdb::math::maxComponent(hi, box.max().asVec3d());
+        any = true;
+    }
+    // A point where the trilinear interpolation is <= 0 lies in a cell with a corner <= 0:
+    // within one voxel, along each axis, of such a voxel's centre (and deep inside voxels,
+    // inactive, are enclosed by the band's). A quarter voxel more for rounding.
+    const double grow = 1.25;
+    if (!any) {
+        mSolidWS = mBoundsWS;
+        mSolidCentre = 0.5 * (mBoundsWS.lo + mBoundsWS.hi);
+        mSolidRadius = 0.5 * glm::length(mBoundsWS.hi - mBoundsWS.lo);
+        return;
+    }
+    lo -= openvdb::Vec3d(grow);
+    hi += openvdb::Vec3d(grow);
+    for (int c = 0; c < 8; ++c) {
+        const openvdb::Vec3d cornerIS((c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(),
+                                      (c & 4) ? hi.z() : lo.z());
+        const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
+        mSolidWS.extend(Vec3(p.x(), p.y(), p.z()));
+    }
+    const openvdb::Vec3d centre = 0.5 * (lo + hi);
+    double far2 = 0.0;
+    for (auto it = mGrid->cbeginValueOn(); it; ++it) {
+        if (!(*it <= 0.0f)) continue;
+        if (it.isVoxelValue()) {
+            far2 = std::max(far2, (it.getCoord().asVec3d() - centre).lengthSqr());
+            continue;
+        }
+        openvdb::CoordBBox box;
+        it.getBoundingBox(box);
+        for (int c = 0; c < 8; ++c) {
+            const openvdb::Vec3d p((c & 1) ? box.max().x() : box.min().x(),
+                                   (c & 2) ? box.max().y() : box.min().y(),
+                                   (c & 4) ? box.max().z() : box.min().z());
+            far2 = std::max(far2, (p - centre).lengthSqr());
+        }
+    }
+    const openvdb::Vec3d cw = mGrid->indexToWorld(centre);
+    mSolidCentre = Vec3(cw.x(), cw.y(), cw.z());
+    mSolidRadius = (std::sqrt(far2) + grow * std::sqrt(3.0)) * mVoxelSize;
 }
 
 LevelSetInfo describe(const LevelSet& ls) {

@@ -29,6 +29,14 @@ class LevelSet {
     const openvdb::FloatGrid& grid() const { return *mGrid; }
     const openvdb::FloatGrid::ConstPtr& gridPtr() const { return mGrid; }
     const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
+    /// What may block a ray: the world box and a sphere (centre, radius) around the active
+    /// voxels whose value is <= 0 (the inside of the band, which encloses the inside of the
+    /// surface), grown by 1.25 voxels for the zero crossing between voxel centres. The band's
+    /// outside, up to half_width voxels thick, is left out. boundsWS() and its circumscribed
+    /// sphere when no active voxel is inside.
+    const Box3& solidBoundsWS() const { return mSolidWS; }
+    const Vec3& solidCentreWS() const { return mSolidCentre; }
+    double solidRadius() const { return mSolidRadius; }
     double voxelSize() const { return mVoxelSize; }
 
     /// The far-field companion used for shadow-ray clearance (occluder.cpp): the same surface
@@ -46,6 +54,7 @@ class LevelSet {
     void adoptFarField(openvdb::FloatGrid::ConstPtr grid) const;
 
   private:
+    void findSolid();
     struct FarCache {
         std::once_flag once;
         openvdb::FloatGrid::ConstPtr grid;
@@ -54,6 +63,9 @@ class LevelSet {
     std::shared_ptr<FarCache> mFar = std::make_shared<FarCache>();
     openvdb::FloatGrid::ConstPtr mGrid;
     Box3 mBoundsWS;
+    Box3 mSolidWS;
+    Vec3 mSolidCentre{0.0};
+    double mSolidRadius = 0.0;
     double mVoxelSize = 0.0;
 };
 

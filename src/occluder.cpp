@@ -115,12 +115,15 @@ Occluder::Occluder(std::vector<ObstacleShape> shapes) {
 
 void Occluder::add(ObstacleShape shape) {
     Box3 b;
+    Solid solid;
     if (const auto* s = std::get_if<AnalyticSphere>(&shape)) {
         b.lo = s->center - Vec3(s->radius);
         b.hi = s->center + Vec3(s->radius);
+        solid = {b, s->center, s->radius};
     } else if (const auto* x = std::get_if<AnalyticBox>(&shape)) {
         b.lo = x->lo;
         b.hi = x->hi;
+        solid = {b, 0.5 * (b.lo + b.hi), 0.5 * glm::length(b.hi - b.lo)};
     } else {
         const LevelSetPtr& ls = std::get<LevelSetPtr>(shape);
         if (!ls) throw std::invalid_argument("Occluder::add: null level set");
@@ -132,9 +135,12 @@ void Occluder::add(ObstacleShape shape) {
             b.hi += Vec3(ls->voxelSize());
         }
         mMinVoxel = mMinVoxel == 0.0 ? ls->voxelSize() : std::min(mMinVoxel, ls->voxelSize());
+        solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius()};
+        if (b.empty()) solid = {b, Vec3(0.0), 0.0};
     }
     mShapes.push_back(std::move(shape));
     mBounds.push_back(b);
+    mSolid.push_back(solid);
     const auto* ls = std::get_if<LevelSetPtr>(&mShapes.back());
     mFar.push_back(ls && *ls ? std::make_shared<FarField>(*ls) : nullptr);
 }
@@ -778,6 +784,7 @@ decltype(auto) Occluder::Query::visitKind(size_t i, F&& f) {
 
 bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,
                             int known) {
+    if (known < 0) mLastBlocker = -1;
     if (clearance) *clearance = Clearance{};
     // The nearest obstacle whose distance is unknown is at least this far (its band): the
     // smallest known distance is the segment's clearance when it is below that.
@@ -832,10 +839,14 @@ bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clea
             found = kind.hit(from, dir, invDir, bounds, tMin, tMax, t);
         });
         if (!found) continue;
-        if (!tHit && !clearance) return true;
+        if (!tHit && !clearance) {
+            mLastBlocker = static_cast<int>(i);
+            return true;
+        }
         hit = true;
         if (t < best) {
             best = t;
+            mLastBlocker = static_cast<int>(i);
             // Nothing can be nearer than the start (with a clearance wanted, the other
             // obstacles are still measured, as when the answer is known beforehand).
             if (best <= 0.0 && !clearance) break;

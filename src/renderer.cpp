@@ -180,6 +180,10 @@ struct Sample {
     double errorBound = 0.0;
     std::vector<uint8_t> pattern;
     int grid = 0;  // first-level grid the pattern was traced on
+    std::vector<uint32_t> blockers;  // Estimate::blockers
+    // Checked interpolation: the unoccluded G and gradient there (the shadow is open - g).
+    Vec3 openG{0.0};
+    Vec3 openGradient{0.0};
 };
 
 // Light scattered by the media towards the camera, per unit of scattering coefficient and for an
@@ -334,6 +338,11 @@ struct ThreadState {
     std::vector<uint32_t> single{0};
     std::vector<uint8_t> lit;
     std::vector<uint8_t> opaqueFree;  // per pixel of the span: no opaque candidate in its shaft
+    std::vector<uint32_t> involved;   // SpanShader::obstaclesNear's answer
+    // Per pixel x of the span: the candidates that may shadow it, pixelObstacles[
+    // pixelObstacleStart[x - x0] .. pixelObstacleStart[x - x0 + 1]) (in candidate order).
+    std::vector<uint32_t> pixelObstacles;
+    std::vector<uint32_t> pixelObstacleStart;
 };
 
 Rgb planeAlbedo(const PlaneReceiver& plane, const Vec3& p) {
@@ -406,9 +415,9 @@ Vec3 lagrange(int x, int x0, const Vec3& v0, int xm, const Vec3& vm, int x1, con
     return w0 * v0 + wm * vm + w1 * v1;
 }
 
-// Through media, how far (relative to the unoccluded form factor) the checked quadratic may miss
-// a quarter point for its interval to be interpolated (SpanShader::shadeMediaRun).
-constexpr double kMediaInterpolationTolerance = 0.0005;
+// How far (relative to the unoccluded form factor) the checked quadratic may miss a quarter point
+// for its interval to be interpolated (SpanShader::shadeCheckedRun).
+constexpr double kCheckedInterpolationTolerance = 0.0005;
 
 bool uniformPattern(const std::vector<uint8_t>& p) {
     return std::all_of(p.begin(), p.end(), [&](uint8_t v) { return v == p.front(); });
@@ -430,6 +439,7 @@ public:
     void shadeSpan(int x0, int x1) {
         RenderStats& st = mTs.stats;
         ++st.spans;
+        mX0 = x0;
         // First-level rays are reused only within one span (so that a pixel's value does not
         // depend on which thread shaded what before), and only on receiver planes: a ray that
         // starts on a curved obstacle's own surface is not measured near its start.
@@ -459,7 +469,8 @@ public:
         auto& cand = mTs.candidates;
         cand.clear();
         Box3 lightBox;
-        for (const Vec3& c : mLight.polygon()) lightBox.extend(c);
+        const std::vector<Vec3> lightPolygon = mLight.polygon();
+        for (const Vec3& c : lightPolygon) lightBox.extend(c);
         if (mSettings.shaftCulling) {
             Shaft shaft(spanBox, lightBox);
             for (size_t i = 0; i < mCtx.occluder.size(); ++i) {
@@ -484,25 +495,41 @@ public:
         // The span's shaft is as wide as the span; each pixel's own shaft (its ray origins to
         // the light) is narrower. A pixel whose shaft meets no candidate is unshadowed: the
         // closed form is then exactly what ACI would find, without a ray.
-        // Which pixels no opaque candidate can shadow is kept for media (shadeMediaRun).
+        // Which pixels no opaque candidate can shadow is kept for media, and which candidates
+        // may shadow each pixel for checked interpolation (shadeCheckedRun).
         mTs.opaqueFree.assign(size_t(x1 - x0 + 1), 0);
+        mTs.pixelObstacles.clear();
+        mTs.pixelObstacleStart.assign(1, 0);
         for (int x = x0; x <= x1; ++x) {
             uint8_t& state = mTs.lit[size_t(x - x0)];
-            if (state != kNeedsRays) continue;
+            if (state != kNeedsRays) {
+                mTs.pixelObstacleStart.push_back(uint32_t(mTs.pixelObstacles.size()));
+                continue;
+            }
             bool noOpaque = cand.empty(), noMedia = media.empty();
-            if (!(noOpaque && noMedia) && mSettings.shaftCulling) {
-                Box3 origin;
-                origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
-                origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
-                Shaft pixelShaft(origin, lightBox);
-                noOpaque = std::none_of(cand.begin(), cand.end(), [&](uint32_t i) {
-                    return pixelShaft.overlaps(mCtx.occluder.bounds(i));
-                });
+            // The pyramid of the pixel's segments to the light: what it does not meet cannot
+            // shadow the pixel (with culling, the pixel's own shaft must meet it too).
+            const Pyramid pyramid(mTs.hits[size_t(x)].point, pad * (1.0 + 1e-6), lightPolygon);
+            Box3 origin;
+            origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
+            origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
+            const Shaft pixelShaft(origin, lightBox);
+            const bool culling = mSettings.shaftCulling;
+            const size_t before = mTs.pixelObstacles.size();
+            for (uint32_t i : cand) {
+                if ((!culling || pixelShaft.overlaps(mCtx.occluder.bounds(i))) &&
+                    mCtx.occluder.mayBlockIn(i, pyramid))
+                    mTs.pixelObstacles.push_back(i);
+            }
+            if (culling) {
+                noOpaque = mTs.pixelObstacles.size() == before;
                 noMedia = std::none_of(media.begin(), media.end(), [&](uint32_t i) {
-                    return pixelShaft.overlaps(mCtx.occluder.mediumBounds(i));
+                    const Box3& b = mCtx.occluder.mediumBounds(i);
+                    return pixelShaft.overlaps(b) && pyramid.mayMeet(b);
                 });
             }
             mTs.opaqueFree[size_t(x - x0)] = noOpaque;
+            mTs.pixelObstacleStart.push_back(uint32_t(mTs.pixelObstacles.size()));
             if (!(noOpaque && noMedia)) continue;
             state = kClosedForm;
             Receiver r = receiver(x);
@@ -527,7 +554,7 @@ public:
         if (!media.empty()) {
             // Through media ACI evaluates a pixel with aciThroughMedia, whose cells follow the
             // transmittance, which shadow patterns do not see. Runs of pixels that no opaque
-            // candidate can shadow are shaded by checked interpolation (shadeMediaRun); every
+            // candidate can shadow are shaded by checked interpolation (shadeCheckedRun); every
             // other pixel is evaluated.
             int x = x0;
             while (x <= x1) {
@@ -545,7 +572,7 @@ public:
                        mTs.opaqueFree[size_t(end + 1 - x0)]) {
                     ++end;
                 }
-                shadeMediaRun(x, end);
+                shadeCheckedRun(x, end, /*media=*/true);
                 x = end + 1;
             }
             mTs.shadow.restrictTo(nullptr);
@@ -561,7 +588,14 @@ public:
             }
             int end = x;
             while (end + 1 <= x1 && mTs.lit[size_t(end + 1 - x0)] == kNeedsRays) ++end;
-            shadeRun(x, end);
+            // The certified default interpolates only where checks and the obstacles that
+            // block rays allow it (shadeCheckedRun); the paper's and arcs modes keep the
+            // shadow patterns of Vedel's section 5.
+            if (mSettings.aci.coverage && mSettings.coherence) {
+                shadeCheckedRun(x, end, /*media=*/false);
+            } else {
+                shadeRun(x, end);
+            }
             x = end + 1;
         }
         mTs.shadow.restrictTo(nullptr);
@@ -602,58 +636,115 @@ private:
                    : mSettings.aci.rayOffset;
     }
 
-    // Pixels [x0, x1] of a span, each seeing the whole light but for the media: their shadow is
-    // the transmittance's, smooth in the receiver wherever the media are. Evaluated at both
-    // ends and the middle; an interval [l, r] with its middle m evaluated is interpolated
-    // (Lagrange, as pattern coherence does) only after a check: its quarter points q are
-    // evaluated and the quadratic through l, m, r must predict each within
-    // kMediaInterpolationTolerance x the unoccluded form factor there. The pixels are then
-    // interpolated through l, q, m and m, q, r (half the step of the checked quadratic);
-    // otherwise each half is checked the same way, down to evaluating every pixel.
-    void shadeMediaRun(int x0, int x1) {
+    // Checked interpolation over pixels [x0, x1] of a span. Evaluated at both ends and the
+    // middle; an interval [l, r] with its middle m evaluated is interpolated (Lagrange, as
+    // pattern coherence does) only after a check: its quarter points q are evaluated and the
+    // quadratic through l, m, r must predict each within kCheckedInterpolationTolerance x the
+    // unoccluded form factor there. The pixels are then interpolated through l, q, m and m, q, r
+    // (half the step of the checked quadratic); otherwise each half is checked the same way,
+    // down to evaluating every pixel, each pixel at most once.
+    //
+    // `media`: pixels that see the whole light but for the media, whose shadow is the
+    // transmittance's, smooth in the receiver (estimateAt: aciThroughMedia). Otherwise pixels
+    // that opaque obstacles may shadow, evaluated by certified ACI; a check there also needs
+    // every obstacle that may block a segment from some pixel of [l, r] to the light (the
+    // candidates that the pyramid from a ball around those pixels meets) to block rays at each
+    // of the five evaluated pixels: a shadow that only pixels between them would see, or one
+    // that vanishes between them, refuses it.
+    void shadeCheckedRun(int x0, int x1, bool media) {
+        mCheckMedia = media;
         if (x1 - x0 < 4) {
-            for (int x = x0; x <= x1; ++x) estimateAt(x);
+            for (int x = x0; x <= x1; ++x) checkedSample(x);
             return;
         }
         const int m = (x0 + x1) / 2;
-        const Sample a = estimateAt(x0), b = estimateAt(x1), mid = estimateAt(m);
-        refineMediaRun(x0, a, m, mid, x1, b);
+        const Sample a = checkedSample(x0), b = checkedSample(x1), mid = checkedSample(m);
+        refineCheckedRun(x0, a, m, mid, x1, b);
     }
 
-    void refineMediaRun(int l, const Sample& sl, int m, const Sample& sm, int r,
-                        const Sample& sr) {
+    Sample checkedSample(int x) {
+        Sample s = mCheckMedia ? estimateAt(x) : exact(x);
+        const Receiver r = receiver(x);
+        const GWithDerivative open = unoccludedG(mLight, r);
+        s.openG = open.g;
+        s.openGradient = gradientOf(open.dg, r.normal);
+        return s;
+    }
+
+    void refineCheckedRun(int l, const Sample& sl, int m, const Sample& sm, int r,
+                          const Sample& sr) {
         const bool left = m - l >= 2, right = r - m >= 2;
         if (!left && !right) return;
         const int q0 = (l + m) / 2, q1 = (m + r) / 2;
         Sample s0, s1;
         double miss = 0.0;  // the checked quadratic's largest miss, relative
         if (left) {
-            s0 = estimateAt(q0);
+            s0 = checkedSample(q0);
             miss = std::max(miss, predictionMiss(q0, s0, l, sl, m, sm, r, sr));
         }
         if (right) {
-            s1 = estimateAt(q1);
+            s1 = checkedSample(q1);
             miss = std::max(miss, predictionMiss(q1, s1, l, sl, m, sm, r, sr));
         }
-        if (miss <= kMediaInterpolationTolerance) {
+        bool ok = miss <= kCheckedInterpolationTolerance;
+        if (ok && !mCheckMedia) {
+            const std::vector<uint32_t>& involved = obstaclesNear(l, r);
+            auto same = [&](const Sample& s) { return s.blockers == involved; };
+            ok = same(sl) && same(sm) && same(sr) && (!left || same(s0)) && (!right || same(s1));
+        }
+        if (ok) {
+            // An interpolated pixel's bound: its samples' plus what the check allowed.
             for (int i = l + 1; i < m; ++i) {
-                if (i != q0) interpolate(i, l, sl, q0, s0, m, sm);
+                if (i != q0) interpolateShadow(i, l, sl, q0, s0, m, sm);
             }
             for (int i = m + 1; i < r; ++i) {
-                if (i != q1) interpolate(i, m, sm, q1, s1, r, sr);
+                if (i != q1) interpolateShadow(i, m, sm, q1, s1, r, sr);
             }
             return;
         }
-        if (left) refineMediaRun(l, sl, q0, s0, m, sm);
-        if (right) refineMediaRun(m, sm, q1, s1, r, sr);
+        if (left) refineCheckedRun(l, sl, q0, s0, m, sm);
+        if (right) refineCheckedRun(m, sm, q1, s1, r, sr);
     }
 
-    // |F(q) - the quadratic through l, m, r at q| over the unoccluded form factor at q.
+    // Checked interpolation at pixel i: the shadow (unoccluded G minus G, and the same of the
+    // gradient), smooth where the check passed and small where little is shadowed, is
+    // interpolated (Lagrange) and taken from pixel i's own closed form. Its bound: the
+    // samples' largest plus what the check allowed (not certified by rays of its own).
+    void interpolateShadow(int i, int x0, const Sample& s0, int xm, const Sample& sm, int x1,
+                           const Sample& s1) {
+        const Receiver r = receiver(i);
+        const GWithDerivative open = unoccludedG(mLight, r);
+        const Vec3 g = open.g - lagrange(i, x0, s0.openG - s0.g, xm, sm.openG - sm.g, x1,
+                                         s1.openG - s1.g);
+        const Vec3 grad = gradientOf(open.dg, r.normal) -
+                          lagrange(i, x0, s0.openGradient - s0.gradient, xm,
+                                   sm.openGradient - sm.gradient, x1, s1.openGradient - s1.gradient);
+        const double f = std::max(0.0, glm::dot(g, r.normal));
+        const double bound = std::max({s0.errorBound, sm.errorBound, s1.errorBound}) +
+                             kCheckedInterpolationTolerance * glm::dot(open.g, r.normal);
+        store(i, f, grad, bound);
+        mTs.sums[size_t(i)].shadowed = true;
+        ++mTs.stats.interpolatedPixels;
+    }
+
+    // The candidates that may block a segment from some pixel of [l, r] to the light (the
+    // union of the pixels' own lists, shadeSpan), sorted, each once.
+    const std::vector<uint32_t>& obstaclesNear(int l, int r) {
+        auto& out = mTs.involved;
+        out.assign(mTs.pixelObstacles.begin() + mTs.pixelObstacleStart[size_t(l - mX0)],
+                   mTs.pixelObstacles.begin() + mTs.pixelObstacleStart[size_t(r - mX0 + 1)]);
+        std::sort(out.begin(), out.end());
+        out.erase(std::unique(out.begin(), out.end()), out.end());
+        return out;
+    }
+
+    // |F(q) - F predicted at q by the shadow's quadratic through l, m, r| over the unoccluded F at q.
     double predictionMiss(int q, const Sample& sq, int l, const Sample& sl, int m,
                           const Sample& sm, int r, const Sample& sr) const {
         const Vec3 n = mTs.hits[size_t(q)].normal;
-        const Vec3 g = lagrange(q, l, sl.g, m, sm.g, r, sr.g);
-        const double open = unoccludedFormFactor(mLight, receiver(q));
+        const Vec3 g = sq.openG - lagrange(q, l, sl.openG - sl.g, m, sm.openG - sm.g, r,
+                                           sr.openG - sr.g);
+        const double open = glm::dot(sq.openG, n);
         const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(sq.g, n));
         return open > 0.0 ? diff / open : (diff > 0.0 ? HUGE_VAL : 0.0);
     }
@@ -678,7 +769,7 @@ private:
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
-        return Sample{e.g, e.gradient, e.errorBound, {}, 0};
+        return Sample{e.g, e.gradient, e.errorBound, {}, 0, std::move(e.blockers)};
     }
 
     Estimate evaluate(int x, bool adapt) {
@@ -726,7 +817,8 @@ private:
         int grid = mGrid;
         Estimate e = evaluate(x, /*adapt=*/true);
         store(x, e.formFactor, e.gradient, e.errorBound);
-        return Sample{e.g, e.gradient, e.errorBound, std::move(e.pattern), grid};
+        return Sample{e.g, e.gradient, e.errorBound, std::move(e.pattern), grid,
+                      std::move(e.blockers)};
     }
 
     std::vector<uint8_t> pattern(int x, int grid) {
@@ -806,6 +898,8 @@ private:
     int mRow;
     int mGrid = 2;
     bool mReuse = false;  // reuse first-level rays in this span (AciSettings::reuseCorners)
+    bool mCheckMedia = false;  // shadeCheckedRun: the run is of media pixels
+    int mX0 = 0;               // the span's first pixel
 };
 
 void renderRow(const Context& ctx, ThreadState& ts, int y) {

@@ -179,6 +179,40 @@ TEST_CASE("level-set sphere hits agree with the analytic sphere within 0.25 voxe
     CHECK(q.raysCast() == uint64_t(kRays));
 }
 
+TEST_CASE("a level set's solid bounds hold every hit and leave out the band's outside",
+          "[occluder]") {
+    // Occluder::solidBounds and the sphere beside it (LevelSet::solidBoundsWS): culling drops an
+    // obstacle whose solid bounds miss a pixel's pyramid, so every hit must lie inside them.
+    LevelSetSphere sphere(kCenter);
+    const LevelSet& ls = *std::get<LevelSetPtr>(sphere.occ.shape(0));
+    const Box3& solid = sphere.occ.solidBounds(0);
+    // The sphere's radius, plus the 1.25 voxels of growth (and the half voxel of a voxel
+    // centre inside the surface), well inside the band's bounds (3 voxels more).
+    CHECK(ls.solidRadius() > kRadius);
+    CHECK(ls.solidRadius() < kRadius + 2.5 * kVoxel);
+    CHECK(glm::length(ls.solidCentreWS() - kCenter) < 0.5 * kVoxel);
+    CHECK(solid.hi.x - solid.lo.x < 2.0 * kRadius + 3.5 * kVoxel);
+    CHECK(sphere.occ.bounds(0).hi.x - sphere.occ.bounds(0).lo.x > 2.0 * kRadius + 6.5 * kVoxel);
+    // Grazing segments at every distance around the surface: each hit lies in the solid box
+    // and sphere.
+    std::mt19937_64 rng(5);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    int hits = 0;
+    for (int i = 0; i < 3000; ++i) {
+        const Vec3 dir = randomUnit(rng);
+        const Vec3 side = glm::normalize(glm::cross(dir, randomUnit(rng)));
+        const Vec3 aim = kCenter + kRadius * (0.98 + 0.04 * u(rng)) * side;
+        double t = -1.0;
+        if (!sphere.q.occluded(aim - 2.0 * dir, aim + 2.0 * dir, &t)) continue;
+        ++hits;
+        const Vec3 p = aim - 2.0 * dir + t * dir;
+        REQUIRE(glm::all(glm::greaterThanEqual(p, solid.lo)));
+        REQUIRE(glm::all(glm::lessThanEqual(p, solid.hi)));
+        REQUIRE(glm::length(p - ls.solidCentreWS()) <= ls.solidRadius());
+    }
+    CHECK(hits > 1000);
+}
+
 TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[occluder]") {
     LevelSetSphere sphere(kCenter);
     Occluder::Query& q = sphere.q;

@@ -243,7 +243,7 @@ TEST_CASE("through media, checked interpolation along spans agrees with evaluati
           "[volume][coherence]") {
     // A soft fog sphere and an opaque sphere beside it. With coherence on, runs of pixels that no
     // opaque obstacle can shadow are interpolated where a check at quarter points passes
-    // (renderer.cpp, shadeMediaRun); the others are evaluated as with coherence off.
+    // (renderer.cpp, shadeCheckedRun); the others are evaluated as with coherence off.
     const Scene scene = parseScene(
         R"({"camera": {"eye": [0, -5, 3.5], "look_at": [0, 0, 0.5], "width": 96, "height": 48},
       "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],

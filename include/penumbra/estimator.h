@@ -83,6 +83,9 @@ struct Estimate {
     /// Visibility of the first-level grid corners, row-major over (p+1) x (p+1): 1 visible,
     /// 0 hidden (below the horizon counts as hidden). Used for shadow-pattern coherence.
     std::vector<uint8_t> pattern;
+    /// ACI: the obstacles (indices into the Occluder) that blocked at least one of its rays,
+    /// sorted, one per blocked ray (the nearest hit's). Empty when the whole light was seen.
+    std::vector<uint32_t> blockers;
 };
 
 /// Evaluates `method` at `r` for `light`: ACI methods through `aci` (its settings decide), Monte

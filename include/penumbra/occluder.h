@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <deque>
 #include <limits>
 #include <memory>
 #include <variant>
@@ -70,6 +71,29 @@ struct Certificate {
     double radiusOthers = 0.0;
 };
 
+/// Every segment from a point within `pad` of `apex` to a point of a convex planar polygon (a
+/// light, or the frame its rays aim into) lies in the pyramid of apex and polygon, grown by `pad`.
+/// An obstacle whose bounds lie outside it cannot block such a segment, nor come near one: the
+/// queries of one receiver point need not look at it (Query::narrow).
+class Pyramid {
+public:
+    Pyramid(const Vec3& apex, double pad, const std::vector<Vec3>& polygon);
+    /// False only when one of the pyramid's planes (its sides through the apex and the
+    /// polygon's edges, and the polygon's own plane) has all of `box`, grown by the pad,
+    /// strictly outside.
+    bool mayMeet(const Box3& box) const;
+    /// The same for a sphere.
+    bool mayMeet(const Vec3& centre, double radius) const;
+
+private:
+    struct Plane {
+        Vec3 normal;  // inside: dot(normal, x) >= offset
+        double offset;
+    };
+    std::vector<Plane> mPlanes;
+    double mPad = 0.0;
+};
+
 /// A participating medium between receivers and lights: a density grid and the extinction per
 /// unit density and length (sigma_t = extinction x density).
 struct Medium {
@@ -97,6 +121,13 @@ public:
     const ObstacleShape& shape(size_t i) const { return mShapes[i]; }
     /// World-space bounds of obstacle i (level sets: active voxels, padded by one voxel).
     const Box3& bounds(size_t i) const { return mBounds[i]; }
+    /// Whether obstacle i may block a segment inside `pyramid`: a box and a sphere around what
+    /// can block (level sets: the inside of the band, not its outside; solidBounds()) must
+    /// both meet it.
+    bool mayBlockIn(size_t i, const Pyramid& pyramid) const;
+    /// A box around what of obstacle i can block a ray (within bounds(i); level sets: the
+    /// inside of the band, grown by 1.25 voxels).
+    const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
     /// Smallest voxel size over the level sets, 0 when there are none.
     double minVoxelSize() const { return mMinVoxel; }
 
@@ -117,6 +148,12 @@ private:
     std::vector<ObstacleShape> mShapes;
     std::vector<std::shared_ptr<FarField>> mFar;  // index-aligned with mShapes; null if analytic
     std::vector<Box3> mBounds;
+    struct Solid {
+        Box3 box;
+        Vec3 centre{0.0};
+        double radius = 0.0;
+    };
+    std::vector<Solid> mSolid;  // index-aligned with mShapes
     double mMinVoxel = 0.0;
     std::vector<Medium> mMedia;
     std::vector<Box3> mMediumBounds;
@@ -186,6 +223,16 @@ public:
     /// use.
     void restrictTo(const std::vector<uint32_t>* candidates) { mCandidates = candidates; }
 
+    /// Narrows the following queries to the obstacles of the current restriction that
+    /// `pyramid` may meet, until the matching widen(); calls nest. Returns how many remain.
+    size_t narrow(const Pyramid& pyramid);
+    /// Undoes the latest narrow().
+    void widen();
+
+    /// The obstacle that blocked the latest occluded() segment (the nearest hit's when its
+    /// distance was asked for, else any), -1 when it was unblocked.
+    int lastBlocker() const { return mLastBlocker; }
+
     uint64_t raysCast() const { return mRays; }
     void resetCount() { mRays = 0; }
 
@@ -203,6 +250,27 @@ private:
     const std::vector<uint32_t>* mCandidates = nullptr;
     const std::vector<uint32_t>* mMedia = nullptr;
     uint64_t mRays = 0;
+    int mLastBlocker = -1;
+    // narrow(): one list per nesting level (kept for reuse) and the restriction each replaced.
+    // (a deque: growing it keeps the lists in place, which mCandidates may point to)
+    std::deque<std::vector<uint32_t>> mNarrowed;
+    std::vector<const std::vector<uint32_t>*> mWidened;
+};
+
+/// Narrows a query (Query::narrow) for the lifetime of this object.
+class NarrowedQuery {
+public:
+    NarrowedQuery(Occluder::Query& query, const Pyramid& pyramid)
+        : mQuery(query), mRemaining(query.narrow(pyramid)) {}
+    ~NarrowedQuery() { mQuery.widen(); }
+    NarrowedQuery(const NarrowedQuery&) = delete;
+    NarrowedQuery& operator=(const NarrowedQuery&) = delete;
+    /// How many obstacles the narrowed query looks at.
+    size_t remaining() const { return mRemaining; }
+
+private:
+    Occluder::Query& mQuery;
+    size_t mRemaining;
 };
 
 }  // namespace penumbra
