@@ -248,10 +248,11 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
             if (std::isfinite(again)) lambda = again;
         }
     }
-    // The shoulder ray nearest another obstacle than the arc's: a second silhouette bulges
+    // The shoulder ray hidden by another obstacle than the arc's: a second silhouette bulges
     // into the piece, which the tangent lines of one cannot describe (a small sphere's shadow
     // joined to a large one's). Checked and refined as in section 3.2.
-    if (a.obstacle >= 0 && obstacleOf(q) >= 0 && obstacleOf(q) != a.obstacle)
+    if (a.obstacle >= 0 && sample(q, false) != kVisible && obstacleOf(q) >= 0 &&
+        obstacleOf(q) != a.obstacle)
         return false;
     arc.probed = true;
     const double l = std::clamp(lambda, 0.0, 1.0);

@@ -689,8 +689,31 @@ private:
         bool ok = miss <= kCheckedInterpolationTolerance;
         if (ok && !mCheckMedia) {
             const std::vector<uint32_t>& involved = obstaclesNear(l, r);
-            auto same = [&](const Sample& s) { return s.blockers == involved; };
-            ok = same(sl) && same(sm) && same(sr) && (!left || same(s0)) && (!right || same(s1));
+            // The obstacle the span lies on (curved receivers) is always in its own pyramid
+            // and blocks nothing on its lit side: for it, blocking at all five pixels or at
+            // none of them is consistent (a shadow of its own that appears and vanishes
+            // between two of them is left to the check).
+            const int self = mTs.hits[size_t(l)].object - int(mCtx.scene.receivers.size());
+            auto same = [&](const Sample& s) {
+                if (self < 0) return s.blockers == involved;
+                size_t i = 0, j = 0;
+                for (; i < involved.size(); ++i) {
+                    if (int(involved[i]) == self) continue;
+                    while (j < s.blockers.size() && int(s.blockers[j]) == self) ++j;
+                    if (j == s.blockers.size() || s.blockers[j] != involved[i]) return false;
+                    ++j;
+                }
+                while (j < s.blockers.size() && int(s.blockers[j]) == self) ++j;
+                return j == s.blockers.size();
+            };
+            auto selfBlocks = [&](const Sample& s) {
+                return self >= 0 && std::binary_search(s.blockers.begin(), s.blockers.end(),
+                                                       uint32_t(self));
+            };
+            const bool selfAtL = selfBlocks(sl);
+            auto agrees = [&](const Sample& s) { return same(s) && selfBlocks(s) == selfAtL; };
+            ok = agrees(sl) && agrees(sm) && agrees(sr) && (!left || agrees(s0)) &&
+                 (!right || agrees(s1));
         }
         if (ok) {
             // An interpolated pixel's bound: its samples' plus what the check allowed.
