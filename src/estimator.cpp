@@ -66,8 +66,7 @@ Estimate estimate(Method method, const Receiver& r, const RectLight& light, Occl
     }
     // Monte Carlo rays aim at the light itself: obstacles outside the pyramid of the receiver
     // and the light cannot block them, so the queries skip them.
-    NarrowedQuery narrowed(query, Pyramid(r.point, std::abs(s.rayOffset) * (1.0 + 1e-6),
-                                          light.polygon()));
+    NarrowedQuery narrowed(query, Pyramid(r.point, std::abs(s.rayOffset), light.polygon()));
     switch (method) {
         case Method::Reference: return monteCarloReference(r, light, query, s);
         case Method::McAdaptive: return monteCarloAdaptive(r, light, query, s);

@@ -8,7 +8,7 @@
 namespace penumbra {
 
 Pyramid::Pyramid(const Vec3& apex, double pad, const std::vector<Vec3>& polygon)
-    : mPad(std::max(0.0, pad)) {
+    : mPad(std::max(0.0, pad) * (1.0 + 1e-6)) {  // a rounding margin on the caller's pad
     if (polygon.size() < 3) return;  // no planes: meets everything
     Vec3 centre(0.0);
     double size = 0.0;

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <optional>
 #include <atomic>
 #include <cstdio>
 #include <chrono>
@@ -509,15 +510,16 @@ public:
             bool noOpaque = cand.empty(), noMedia = media.empty();
             // The pyramid of the pixel's segments to the light: what it does not meet cannot
             // shadow the pixel (with culling, the pixel's own shaft must meet it too).
-            const Pyramid pyramid(mTs.hits[size_t(x)].point, pad * (1.0 + 1e-6), lightPolygon);
+            const Pyramid pyramid(mTs.hits[size_t(x)].point, pad, lightPolygon);
+            const bool culling = mSettings.shaftCulling;
             Box3 origin;
             origin.extend(mTs.hits[size_t(x)].point - Vec3(pad));
             origin.extend(mTs.hits[size_t(x)].point + Vec3(pad));
-            const Shaft pixelShaft(origin, lightBox);
-            const bool culling = mSettings.shaftCulling;
+            std::optional<Shaft> pixelShaft;
+            if (culling) pixelShaft.emplace(origin, lightBox);
             const size_t before = mTs.pixelObstacles.size();
             for (uint32_t i : cand) {
-                if ((!culling || pixelShaft.overlaps(mCtx.occluder.bounds(i))) &&
+                if ((!pixelShaft || pixelShaft->overlaps(mCtx.occluder.bounds(i))) &&
                     mCtx.occluder.mayBlockIn(i, pyramid))
                     mTs.pixelObstacles.push_back(i);
             }
@@ -525,7 +527,7 @@ public:
                 noOpaque = mTs.pixelObstacles.size() == before;
                 noMedia = std::none_of(media.begin(), media.end(), [&](uint32_t i) {
                     const Box3& b = mCtx.occluder.mediumBounds(i);
-                    return pixelShaft.overlaps(b) && pyramid.mayMeet(b);
+                    return pixelShaft->overlaps(b) && pyramid.mayMeet(b);
                 });
             }
             mTs.opaqueFree[size_t(x - x0)] = noOpaque;
@@ -647,10 +649,9 @@ private:
     // `media`: pixels that see the whole light but for the media, whose shadow is the
     // transmittance's, smooth in the receiver (estimateAt: aciThroughMedia). Otherwise pixels
     // that opaque obstacles may shadow, evaluated by certified ACI; a check there also needs
-    // every obstacle that may block a segment from some pixel of [l, r] to the light (the
-    // candidates that the pyramid from a ball around those pixels meets) to block rays at each
-    // of the five evaluated pixels: a shadow that only pixels between them would see, or one
-    // that vanishes between them, refuses it.
+    // every obstacle that may block a segment from some pixel of [l, r] to the light
+    // (obstaclesNear) to block rays at each of the five evaluated pixels: a shadow that only
+    // pixels between them would see, or one that vanishes between them, refuses it.
     void shadeCheckedRun(int x0, int x1, bool media) {
         mCheckMedia = media;
         if (x1 - x0 < 4) {
@@ -694,24 +695,21 @@ private:
             // none of them is consistent (a shadow of its own that appears and vanishes
             // between two of them is left to the check).
             const int self = mTs.hits[size_t(l)].object - int(mCtx.scene.receivers.size());
-            auto same = [&](const Sample& s) {
-                if (self < 0) return s.blockers == involved;
-                size_t i = 0, j = 0;
-                for (; i < involved.size(); ++i) {
-                    if (int(involved[i]) == self) continue;
-                    while (j < s.blockers.size() && int(s.blockers[j]) == self) ++j;
-                    if (j == s.blockers.size() || s.blockers[j] != involved[i]) return false;
-                    ++j;
-                }
-                while (j < s.blockers.size() && int(s.blockers[j]) == self) ++j;
-                return j == s.blockers.size();
+            auto others = [&](const std::vector<uint32_t>& v) {
+                std::vector<uint32_t> out;
+                for (uint32_t i : v)
+                    if (int(i) != self) out.push_back(i);
+                return out;
             };
             auto selfBlocks = [&](const Sample& s) {
                 return self >= 0 && std::binary_search(s.blockers.begin(), s.blockers.end(),
                                                        uint32_t(self));
             };
+            const std::vector<uint32_t> expected = others(involved);
             const bool selfAtL = selfBlocks(sl);
-            auto agrees = [&](const Sample& s) { return same(s) && selfBlocks(s) == selfAtL; };
+            auto agrees = [&](const Sample& s) {
+                return others(s.blockers) == expected && selfBlocks(s) == selfAtL;
+            };
             ok = agrees(sl) && agrees(sm) && agrees(sr) && (!left || agrees(s0)) &&
                  (!right || agrees(s1));
         }
