@@ -93,7 +93,7 @@ struct Occluder::FarField {
             double worst = 0.0;
             for (auto it = fine.cbeginValueOn(); it; ++it) {
                 const openvdb::Vec3d w = fine.indexToWorld(it.getCoord());
-                const double vc = openvdb::tools::BoxSampler::sample(acc, coarse.worldToIndex(w));
+                const double vc = sampleTrilinear(acc, coarse.worldToIndex(w));
                 worst = std::max(worst, std::abs(vc - double(*it)));
             }
             errorValue = worst + 0.5 * fine.voxelSize()[0];
@@ -353,7 +353,7 @@ template <typename Accessor>
 Vec3 gradientAt(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& p) {
     const double h = grid.voxelSize()[0];
     auto phi = [&](const Vec3& q) {
-        return double(openvdb::tools::BoxSampler::sample(
+        return double(sampleTrilinear(
             acc, grid.worldToIndex(openvdb::Vec3d(q.x, q.y, q.z))));
     };
     return unitGradient(phi, p, h);
@@ -374,7 +374,7 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
     const double voxel = grid.voxelSize()[0];
     auto phiAt = [&](double t) {
         const Vec3 p = from + t * dir;
-        return double(openvdb::tools::BoxSampler::sample(
+        return double(sampleTrilinear(
             acc, grid.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z))));
     };
     Clearance c;
@@ -560,10 +560,11 @@ double boxSdf(const Box3& b, const Vec3& p) {
 /// A cone march: the segment's cone of radius rho at the light is proven free while balls of
 /// the bounded distance around points of the segment contain its cross-sections, and rho shrinks
 /// (at least halving) when a ball is too small. A segment that goes inside is then sampled for
-/// its depth.
+/// its depth. `floor` > 0: a clear radius the caller already holds (the solid's box or sphere);
+/// the march gives up (returning 0) once its cone would shrink below it.
 static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
                              double coarseError, const Box3& bounds, const Vec3& m, const Vec3& v,
-                             double want, bool blocked, double tHit) {
+                             double want, bool blocked, double tHit, double floor) {
     const double length = glm::length(v);
     const double hc = coarseError;
     const double bandC = 0.98 * double(coarse.background());
@@ -575,7 +576,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
             std::make_unique<openvdb::FloatGrid::ConstAccessor>(coarse.getConstAccessor());
     }
     auto sample = [](const openvdb::FloatGrid& g, auto& acc, const Vec3& p) {
-        return double(openvdb::tools::BoxSampler::sample(
+        return double(sampleTrilinear(
             acc, g.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z))));
     };
     // Bounds on the fine surface's signed distance at p: lo <= phi <= hi. `need` is what the
@@ -618,6 +619,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
             if (r.lo < 1.25 * rho * t) {
                 // Too close for this cone to step on by at least a fifth of the ball: narrow it.
                 rho = 0.7 * r.lo / t;
+                if (rho <= floor) return 0.0;
                 if (rho < rhoMin) break;
             }
             const double next = (r.lo + length * t) / (length + rho);
@@ -719,6 +721,8 @@ struct LevelSetKind {
     LevelSetSlot* slot;  // this thread's intersector and accessors; null for an empty grid
     const Occluder::FarField& far;
     const Box3& bounds;
+    AnalyticSphere solidSphere;  // around what can block (Occluder::solidBounds)
+    AnalyticBox solidBox;
 
     Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3& invDir, double t0,
                         double t1, bool& near) const {
@@ -744,7 +748,7 @@ struct LevelSetKind {
             // start inside the surface must be caught here.
             const openvdb::Vec3d startIS =
                 slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
-            if (openvdb::tools::BoxSampler::sample(slot->accessor, startIS) < 0.0f) {
+            if (sampleTrilinear(slot->accessor, startIS) < 0.0f) {
                 t = 0.0;
                 return true;
             }
@@ -763,9 +767,20 @@ struct LevelSetKind {
         return true;
     }
     double radius(const Vec3& m, const Vec3& v, double want, bool blocked, double tHitFraction) const {
-        return slot ? levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
-                                     tHitFraction)
-                    : want;
+        if (!slot) return want;
+        // Every point the tracer can hit lies in the solid's box and in its sphere
+        // (LevelSet::solidBoundsWS): a segment clear of either is clear of the level set, with
+        // their exact radii. Often as large as the march could prove (a sphere's or an upright
+        // box's level set), and in closed form; the march then runs only to beat it.
+        double solidR = 0.0;
+        if (tHitFraction < 0.0) {
+            solidR = std::max(0.0, sphereRadius(solidSphere, m, v));
+            if (solidR < want) solidR = std::max(solidR, boxRadius(solidBox, m, v));
+            if (solidR >= want) return want;
+        }
+        const double r = levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
+                                        tHitFraction, solidR);
+        return solidR > 0.0 ? std::max(r, solidR) : r;
     }
 };
 
@@ -778,8 +793,15 @@ decltype(auto) Occluder::Query::visitKind(size_t i, F&& f) {
         return f(AnalyticKind<AnalyticSphere>{*sphere});
     }
     if (const auto* box = std::get_if<AnalyticBox>(&shape)) return f(AnalyticKind<AnalyticBox>{*box});
+    const Occluder::Solid& solid = mOccluder->mSolid[i];
+    AnalyticSphere around;
+    around.center = solid.centre;
+    around.radius = solid.radius;
+    AnalyticBox box;
+    box.lo = solid.box.lo;
+    box.hi = solid.box.hi;
     return f(LevelSetKind{*std::get<LevelSetPtr>(shape), mImpl->levelSets[i].get(),
-                          *mOccluder->mFar[i], mOccluder->bounds(i)});
+                          *mOccluder->mFar[i], mOccluder->bounds(i), around, box});
 }
 
 bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,

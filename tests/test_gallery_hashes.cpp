@@ -50,15 +50,19 @@ struct GalleryCase {
 // after a check and only where every obstacle that may shadow blocks rays at the checked
 // pixels (renderer.cpp, shadeCheckedRun; the paper's and arcs rows unchanged; Monte Carlo's
 // changed because the pyramid test gives the closed form at more pixels, 1247 against 1151).
+// The default mode's rows of the level-set scenes (default, table1, vdb_tool) rewritten on
+// 2026-11-28 when a level set's certificate took the exact radius of its solid box and sphere
+// where the cone march proves less (other discs, so other coverage rays; csg, bunny and fog
+// unchanged, and sampleTrilinear is OpenVDB's BoxSampler bit for bit: its own test).
 const GalleryCase kCases[] = {
-    {"default", "", "1fc95cbc45655b0a"},
+    {"default", "", "cdd8cdef79f8342c"},
     {"default", "--aci-mode paper", "51cf2532df25c8c0"},
     {"default", "--aci-mode arcs", "60cb8adf23369065"},
     {"default", "--method mc-solid-angle --samples 64", "815bb575916f7f50"},
-    {"table1", "", "fe3dd7bbd5f80599"},
+    {"table1", "", "e7bd8fcd222d976c"},
     {"table1", "--aci-mode paper", "3a42e2cdc80eed9f"},
     {"csg", "", "f1b59311c3756e7d"},
-    {"vdb_tool", "", "2762e61c636ca3c2"},
+    {"vdb_tool", "", "c959c7532e03a5e7"},
     {"bunny", "", "7a2aca465c60fbe3"},
     {"fog", "", "e4afe13e98f51788"},
 };

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -211,6 +212,28 @@ TEST_CASE("a level set's solid bounds hold every hit and leave out the band's ou
         REQUIRE(glm::length(p - ls.solidCentreWS()) <= ls.solidRadius());
     }
     CHECK(hits > 1000);
+}
+
+TEST_CASE("sampleTrilinear gives BoxSampler's values bit for bit", "[occluder]") {
+    // The distance marches read level sets through sampleTrilinear (level_set_impl.h), which
+    // reads a cell's eight values straight from its leaf when they share one: every point,
+    // inside cells, across leaf borders and in the background, must give OpenVDB's value.
+    LevelSetSphere sphere(kCenter);
+    const openvdb::FloatGrid& grid = std::get<LevelSetPtr>(sphere.occ.shape(0))->grid();
+    auto fast = grid.getConstAccessor();
+    auto slow = grid.getConstAccessor();
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    int leafPath = 0;
+    for (int i = 0; i < 20000; ++i) {
+        const Vec3 w = kCenter + (kRadius + 6.0 * kVoxel) * Vec3(u(rng), u(rng), u(rng));
+        const openvdb::Vec3d xyz = grid.worldToIndex(openvdb::Vec3d(w.x, w.y, w.z));
+        const float a = sampleTrilinear(fast, xyz);
+        const float b = openvdb::tools::BoxSampler::sample(slow, xyz);
+        REQUIRE(std::memcmp(&a, &b, sizeof a) == 0);
+        if (std::abs(b) < 0.98f * grid.background()) ++leafPath;
+    }
+    CHECK(leafPath > 1000);  // the band was sampled, not only the background
 }
 
 TEST_CASE("a shadow ray starting 1.5 voxels off a level set does not hit it", "[occluder]") {
