@@ -417,7 +417,7 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
     c.distance = minPhi;
     if (std::isfinite(minPhi)) {
         const Vec3 p = from + c.at * dir;
-        c.normal = gradientAt(grid, acc, p);
+        bool blended = false;
         if (polish) {
             // At the closest point the surface's normal is perpendicular to the ray. Past a
             // sharp edge the gradient there is the average of the two faces' (central
@@ -438,10 +438,13 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
                 const Vec3 n = (b * gm - a * gp) / (b - a);
                 if (glm::length(n) > 1e-6) {
                     c.normal = glm::normalize(n);
+                    blended = true;
                     break;
                 }
             }
         }
+        // The gradient at the closest point itself where no blend stands for it.
+        if (!blended) c.normal = gradientAt(grid, acc, p);
     }
     return c;
 }
