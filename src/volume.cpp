@@ -259,7 +259,7 @@ VolumeSampler::~VolumeSampler() = default;
 
 double VolumeSampler::density(const Vec3& p) {
     ++mSamples;
-    return openvdb::tools::BoxSampler::sample(
+    return sampleTrilinear(
         mImpl->accessor, mImpl->volume->grid().worldToIndex(openvdb::Vec3d(p.x, p.y, p.z)));
 }
 
@@ -285,7 +285,7 @@ double VolumeSampler::opticalDepth(const Vec3& from, const Vec3& dir, double t0,
         double s = 0.0;
         for (int i = 0; i < n; ++i) {
             const double t = a + (i + 0.5) * h;
-            s += openvdb::tools::BoxSampler::sample(mImpl->accessor, eye + (ahead - eye) * t);
+            s += sampleTrilinear(mImpl->accessor, eye + (ahead - eye) * t);
         }
         mSamples += uint64_t(n);
         sum += s * h;
