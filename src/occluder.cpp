@@ -724,8 +724,9 @@ struct LevelSetKind {
     LevelSetSlot* slot;  // this thread's intersector and accessors; null for an empty grid
     const Occluder::FarField& far;
     const Box3& bounds;
-    AnalyticSphere solidSphere;  // around what can block (Occluder::solidBounds)
-    AnalyticBox solidBox;
+    const Box3& solidBox;  // around what can block (Occluder::solidBounds), and a sphere
+    const Vec3& solidCentre;
+    double solidRadius;
 
     Clearance clearance(const Vec3& from, const Vec3& dir, const Vec3& invDir, double t0,
                         double t1, bool& near) const {
@@ -777,8 +778,16 @@ struct LevelSetKind {
         // box's level set), and in closed form; the march then runs only to beat it.
         double solidR = 0.0;
         if (tHitFraction < 0.0) {
-            solidR = std::max(0.0, sphereRadius(solidSphere, m, v));
-            if (solidR < want) solidR = std::max(solidR, boxRadius(solidBox, m, v));
+            AnalyticSphere sphere;
+            sphere.center = solidCentre;
+            sphere.radius = solidRadius;
+            solidR = std::max(0.0, sphereRadius(sphere, m, v));
+            if (solidR < want) {
+                AnalyticBox box;
+                box.lo = solidBox.lo;
+                box.hi = solidBox.hi;
+                solidR = std::max(solidR, boxRadius(box, m, v));
+            }
             if (solidR >= want) return want;
         }
         const double r = levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
@@ -797,14 +806,9 @@ decltype(auto) Occluder::Query::visitKind(size_t i, F&& f) {
     }
     if (const auto* box = std::get_if<AnalyticBox>(&shape)) return f(AnalyticKind<AnalyticBox>{*box});
     const Occluder::Solid& solid = mOccluder->mSolid[i];
-    AnalyticSphere around;
-    around.center = solid.centre;
-    around.radius = solid.radius;
-    AnalyticBox box;
-    box.lo = solid.box.lo;
-    box.hi = solid.box.hi;
     return f(LevelSetKind{*std::get<LevelSetPtr>(shape), mImpl->levelSets[i].get(),
-                          *mOccluder->mFar[i], mOccluder->bounds(i), around, box});
+                          *mOccluder->mFar[i], mOccluder->bounds(i), solid.box, solid.centre,
+                          solid.radius});
 }
 
 bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clearance* clearance,
