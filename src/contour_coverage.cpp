@@ -3,6 +3,7 @@
 // neither holds, a new pass where one contradicts the contour, and the error bound from what
 // stays unproven.
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <limits>
 
@@ -17,7 +18,9 @@ bool ContourIntegrator::Lattice::wholeLight() {
     const Vec3 pc = pointOf(centre);
     for (const Vec3& q : light.polygon())
         if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
+    wantWhole = true;
     const bool vis = visible(centre, true);
+    wantWhole = false;
     if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
     const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
     if (light.shape == LightShape::Disc) {
@@ -222,12 +225,107 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
     const Vec3 centre = light.point((x0 + 0.5 * s) / N, (y0 + 0.5 * s) / N);
     const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                        glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
+    auto nearDisc = [&](const Disc& d) { return glm::length(d.c - centre) < std::max(d.r, d.ro) + half; };
+    auto nearSeg = [&](const Segment& g) { return distanceToSegment(centre, g) < g.width + half; };
     scratch.mDiscs.clear();
-    for (const Disc& d : scratch.mTracedDiscs)
-        if (glm::length(d.c - centre) < std::max(d.r, d.ro) + half) scratch.mDiscs.push_back(d);
     scratch.mNearSegs.clear();
-    for (const Segment& g : scratch.mSegs)
-        if (distanceToSegment(centre, g) < g.width + half) scratch.mNearSegs.push_back(g);
+    const int b = bucketOf(x0, y0, s);
+    if (b < 0) {  // not inside one bucket: everything
+        for (const Disc& d : scratch.mTracedDiscs)
+            if (nearDisc(d)) scratch.mDiscs.push_back(d);
+        for (const Segment& g : scratch.mSegs)
+            if (nearSeg(g)) scratch.mNearSegs.push_back(g);
+        return;
+    }
+    for (uint32_t i : scratch.mDiscBuckets[static_cast<size_t>(b)])
+        if (nearDisc(scratch.mTracedDiscs[i])) scratch.mDiscs.push_back(scratch.mTracedDiscs[i]);
+    for (uint32_t i : scratch.mSegBuckets[static_cast<size_t>(b)])
+        if (nearSeg(scratch.mSegs[i])) scratch.mNearSegs.push_back(scratch.mSegs[i]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The spatial index. A square inside bucket B lies in B's circumscribed disc together with its
+// own (their centres are at most B's half diagonal minus the square's apart), so whatever comes
+// within some distance of the square's centre plus its half diagonal comes within that distance
+// of B's centre plus B's half diagonal: a bucket keeps everything that test passes.
+
+Vec3 ContourIntegrator::Lattice::bucketCentre(int i, int j) const {
+    return light.point((i + 0.5) / p, (j + 0.5) / p);
+}
+
+// Adds `index` to the buckets whose centre may lie within `reach` (world length) of the lattice
+// box [a0, a1] x [b0, b1] and for whose centre keep() holds.
+template <class Keep>
+void ContourIntegrator::Lattice::addToBuckets(std::vector<std::vector<uint32_t>>& buckets,
+                                              uint32_t index, double a0, double b0, double a1,
+                                              double b1, double reach, const Keep& keep) {
+    const double da = reach * perUnitA + 1.0, db = reach * perUnitB + 1.0;
+    auto range = [&](double lo, double hi, int& i0, int& i1) {
+        i0 = static_cast<int>(std::clamp(std::floor(lo / bucketSide), 0.0, double(p - 1)));
+        i1 = static_cast<int>(std::clamp(std::floor(hi / bucketSide), 0.0, double(p - 1)));
+    };
+    int i0, i1, j0, j1;
+    range(a0 - da, a1 + da, i0, i1);
+    range(b0 - db, b1 + db, j0, j1);
+    for (int j = j0; j <= j1; ++j)
+        for (int i = i0; i <= i1; ++i)
+            if (keep(bucketCentre(i, j))) buckets[static_cast<size_t>(j) * p + i].push_back(index);
+}
+
+void ContourIntegrator::Lattice::addDisc(uint32_t index) {
+    const Disc& d = scratch.mTracedDiscs[index];
+    const double r = std::max(d.r, d.ro);
+    const double reach = (r + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
+    const Vec2 uv = light.coordinates(d.c);
+    addToBuckets(scratch.mDiscBuckets, index, uv.x * N, uv.y * N, uv.x * N, uv.y * N, reach,
+                 [&](const Vec3& c) { return glm::length(d.c - c) < reach; });
+}
+
+void ContourIntegrator::Lattice::addSegments(uint32_t seg0) {
+    for (auto i = seg0; i < scratch.mSegs.size(); ++i) {
+        const Segment& g = scratch.mSegs[i];
+        const double reach = (g.width + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
+        const Vec2 ua = light.coordinates(g.a), ub = light.coordinates(g.b);
+        addToBuckets(scratch.mSegBuckets, i, std::min(ua.x, ub.x) * N, std::min(ua.y, ub.y) * N,
+                     std::max(ua.x, ub.x) * N, std::max(ua.y, ub.y) * N, reach,
+                     [&](const Vec3& c) { return distanceToSegment(c, g) < reach; });
+    }
+}
+
+void ContourIntegrator::Lattice::addLeaf(const Leaf& leaf) {
+    const auto index = static_cast<uint32_t>(scratch.mLeaves.size());
+    scratch.mLeaves.push_back(leaf);
+    const int b = bucketOf(leaf.x0, leaf.y0, leaf.s);
+    assert(b >= 0);  // squares never outgrow a first-level square
+    scratch.mLeafBuckets[static_cast<size_t>(b)].push_back(index);
+}
+
+// The bucket holding the lattice square (x0, y0, s), -1 when no one bucket does.
+int ContourIntegrator::Lattice::bucketOf(int x0, int y0, int s) const {
+    const int i = x0 / bucketSide, j = y0 / bucketSide;
+    if (i >= p || j >= p || x0 + s > (i + 1) * bucketSide || y0 + s > (j + 1) * bucketSide) return -1;
+    return j * p + i;
+}
+
+// Calls f(index) for every leaf holding lattice point q (inside or on its border), in no
+// particular order, until f returns true; true then.
+template <class F>
+bool ContourIntegrator::Lattice::forLeavesHolding(LatticePoint q, const F& f) const {
+    int is[2], js[2], ni = 0, nj = 0;
+    const int ia = std::min(q.a / bucketSide, p - 1), jb = std::min(q.b / bucketSide, p - 1);
+    is[ni++] = ia;
+    if (q.a == ia * bucketSide && ia > 0) is[ni++] = ia - 1;
+    js[nj++] = jb;
+    if (q.b == jb * bucketSide && jb > 0) js[nj++] = jb - 1;
+    for (int y = 0; y < nj; ++y)
+        for (int x = 0; x < ni; ++x)
+            for (uint32_t i : scratch.mLeafBuckets[static_cast<size_t>(js[y]) * p + is[x]]) {
+                const Leaf& leaf = scratch.mLeaves[i];
+                if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
+                    continue;
+                if (f(i)) return true;
+            }
+    return false;
 }
 
 // The lattice point where coverage wants its next ray: the centre (or a corner not yet
@@ -332,24 +430,19 @@ bool ContourIntegrator::Lattice::contradicts(uint32_t idx) const {
     const float sv = scratch.mSample[idx];
     if (sv == kBelowHorizon) return false;
     const int answer = sv == kVisible ? 1 : 0;
-    for (const Leaf& leaf : scratch.mLeaves) {
-        if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
-            continue;
-        if (leaf.type != 2) {
-            if (leaf.type != answer) return true;
-            continue;
-        }
-        const Vec3 p = pointOf(q);
+    return forLeavesHolding(q, [&](uint32_t i) {
+        const Leaf& leaf = scratch.mLeaves[i];
+        if (leaf.type != 2) return leaf.type != answer;
+        const Vec3 pq = pointOf(q);
         double best;
-        const int side = nearestSide(leaf, p, best);
+        const int side = nearestSide(leaf, pq, best);
         if (side != answer && best > epsWorld) return true;
         // On the leaf's own border a vertex that the sample contradicts was placed before
         // the sample was traced (a neighbour's dichotomy): the next pass narrows it.
         const bool onBorder = q.a == leaf.x0 || q.a == leaf.x0 + leaf.s || q.b == leaf.y0 ||
                               q.b == leaf.y0 + leaf.s;
-        if (onBorder && side != answer && best > 1e-9 * unit && self.mSettings.distanceGuided) return true;
-    }
-    return false;
+        return onBorder && side != answer && best > 1e-9 * unit && self.mSettings.distanceGuided;
+    });
 }
 
 // The side of a contour square's nearest segment a light point lies on (visible, 1, on the
@@ -374,15 +467,18 @@ int ContourIntegrator::Lattice::nearestSide(const Leaf& leaf, const Vec3& p, dou
 
 // What the current contour says about a light point: visible (1) or hidden (0).
 int ContourIntegrator::Lattice::predicted(LatticePoint q) const {
-    for (const Leaf& leaf : scratch.mLeaves) {
-        if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
-            continue;
-        if (leaf.type != 2) return leaf.type;
-        // A contour square: the side of the nearest segment (visible on the left in (u, v)).
-        double best;
-        return nearestSide(leaf, pointOf(q), best);
-    }
-    return 1;
+    // The first leaf (in pass order) that holds it.
+    uint32_t first = std::numeric_limits<uint32_t>::max();
+    forLeavesHolding(q, [&](uint32_t i) {
+        first = std::min(first, i);
+        return false;
+    });
+    if (first == std::numeric_limits<uint32_t>::max()) return 1;
+    const Leaf& leaf = scratch.mLeaves[first];
+    if (leaf.type != 2) return leaf.type;
+    // A contour square: the side of the nearest segment (visible on the left in (u, v)).
+    double best;
+    return nearestSide(leaf, pointOf(q), best);
 }
 
 // What a piece may miss where two silhouettes meet in the square (or a silhouette meets a
@@ -434,7 +530,8 @@ void ContourIntegrator::Lattice::recordContourLeaf(int x0, int y0, int s, const 
         scratch.mSegs.push_back({a.c, mid, band, own});
         scratch.mSegs.push_back({mid, b.c, band, own});
     }
-    scratch.mLeaves.push_back({x0, y0, s, 2, seg0, static_cast<uint32_t>(scratch.mSegs.size())});
+    addSegments(seg0);
+    addLeaf({x0, y0, s, 2, seg0, static_cast<uint32_t>(scratch.mSegs.size())});
     // What each piece's data leave open: the strip of the vertices' uncertainty, and for a
     // tangent arc the part of its tangent triangle the arc may miss (two thirds without a
     // shoulder ray, a quarter with one), for a checked piece half the change that the check

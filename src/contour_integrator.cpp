@@ -68,8 +68,24 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     cellReach = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV)) / N;
     // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
     want = 0.51 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
+    // Other certified rays ask for what covers the first-level squares around a corner from
+    // that corner alone (the same as `want` up to p = 2): smaller discs are cheaper to prove,
+    // and they stay in few of coverage's buckets.
+    wantSquare = want * std::min(1.0, 2.0 / grid);
     const size_t size = static_cast<size_t>(N + 1) * (N + 1);
     if (s.mSettings.coverage && scratch.mCert.size() < size) scratch.mCert.resize(size);
+    bucketSide = 2 << n;
+    bucketReach = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV)) / p;
+    const double cross = glm::length(glm::cross(l.edgeU, l.edgeV));
+    perUnitA = N * glm::length(l.edgeV) / cross;
+    perUnitB = N * glm::length(l.edgeU) / cross;
+    if (s.mSettings.coverage) {
+        const size_t buckets = static_cast<size_t>(p) * p;
+        for (auto* v : {&scratch.mDiscBuckets, &scratch.mSegBuckets, &scratch.mLeafBuckets}) {
+            if (v->size() < buckets) v->resize(buckets);
+            for (auto& b : *v) b.clear();
+        }
+    }
     scratch.mTraced.clear();
     scratch.mTracedDiscs.clear();
     scratch.mAllTraced.clear();
@@ -133,7 +149,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         // coverage rays far from any contour never need it.
         const bool lazy = self.mSettings.distanceGuided && self.mSettings.coverage && !kept;
         ray = traceRay(query, origin, target, self.mSettings,
-                       firstLevel || certifyNext ? want : 0.0,
+                       firstLevel || certifyNext ? (wantWhole ? want : wantSquare) : 0.0,
                        self.mSettings.distanceGuided && !lazy);
         scratch.mPending[idx] = lazy;
         if (kept) *kept = ray;
@@ -151,6 +167,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         if (c.radius > 0.0 || c.radiusOthers > 0.0) {
             scratch.mTraced.push_back(static_cast<uint32_t>(idx));
             scratch.mTracedDiscs.push_back({target, c.radius, c.radiusOthers, c.obstacle});
+            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1));
         }
     }
     return s;

@@ -132,6 +132,11 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     std::vector<uint32_t> mBlockers;   // the obstacles that blocked rays this time (repeats)
     uint32_t mGeneration = 0;
+    // Coverage's spatial index: one bucket per first-level square of the base grid (p x p),
+    // each listing, in index order, the discs (mTracedDiscs), contour segments (mSegs) and
+    // leaves (mLeaves) that may matter for a square inside it. Lists are supersets of what the
+    // scans keep, so answers are those of a scan of everything.
+    std::vector<std::vector<uint32_t>> mDiscBuckets, mSegBuckets, mLeafBuckets;
 };
 
 // One evaluation at one receiver point: the sample lattice and the running contour sums.
@@ -151,9 +156,14 @@ struct ContourIntegrator::Lattice {
     Vec3 lightNormal;
     double epsWorld;  // world length of the final dichotomy interval (the strip width)
     double want;      // coverage: the radius that covers the whole light from any of its points
+    double wantSquare;  // coverage: the radius that covers a corner's first-level squares
+    bool wantWhole = false;  // coverage: the next ray asks for `want` (wholeLight's)
     double bound = 0.0;  // coverage: the running error bound (Estimate::errorBound)
     double unit;         // world length of one lattice unit (averaged over the two edges)
     double cellReach;    // coverage: a cell's farthest point from its centre, per unit of side
+    int bucketSide;      // coverage: lattice units per bucket (a first-level square's side)
+    double bucketReach;  // coverage: a bucket's farthest point from its centre
+    double perUnitA, perUnitB;  // coverage: lattice units per world length across each edge
     // What emits: the frame above the horizon, inside a polygon light's cutting edges and a disc
     // light's circle. Points outside are hidden without a ray (kBelowHorizon).
     std::vector<LightEdge> cuts;
@@ -279,6 +289,17 @@ struct ContourIntegrator::Lattice {
     double junctionAllowance(const Vertex& a, const Vertex& b, const LatticePoint c[4]) const;
     void recordContourLeaf(int x0, int y0, int s, const Vertex x[4], const Piece pieces[2],
                            int nPieces);
+    // The spatial index (contour_coverage.cpp).
+    Vec3 bucketCentre(int i, int j) const;
+    template <class Keep>
+    void addToBuckets(std::vector<std::vector<uint32_t>>& buckets, uint32_t index, double a0,
+                      double b0, double a1, double b1, double reach, const Keep& keep);
+    void addDisc(uint32_t index);
+    void addLeaf(const Leaf& leaf);
+    void addSegments(uint32_t seg0);
+    int bucketOf(int x0, int y0, int s) const;
+    template <class F>
+    bool forLeavesHolding(LatticePoint q, const F& f) const;
 
     // ----- What emits (contour_border.cpp) -----
     // Height of a light point above the receiver's tangent plane.

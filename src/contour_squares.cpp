@@ -33,6 +33,8 @@ bool ContourIntegrator::Lattice::pass(int r) {
     passLevel = r;
     scratch.mLeaves.clear();
     scratch.mSegs.clear();
+    for (auto& b : scratch.mSegBuckets) b.clear();
+    for (auto& b : scratch.mLeafBuckets) b.clear();
     const int k = n - r;
     const int s = 2 << k;
     const int squares = p << r;
@@ -62,7 +64,7 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
             ++counts.squaresSplitForCoverage;
             return split(x0, y0, k, thr, depth, v, onBorder);
         }
-        if (self.mSettings.coverage) scratch.mLeaves.push_back({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
+        if (self.mSettings.coverage) addLeaf({x0, y0, s, nVisible == 4 ? 1 : 0, 0, 0});
         if (nVisible == 4)
             for (int i = 0; i < 4; ++i)
                 if (onBorder[i]) emit(pointOf(c[i]), pointOf(c[(i + 1) & 3]));
