@@ -81,7 +81,8 @@
 //    sampled pixels whose hit object differs between the two cameras, and the largest
 //    difference between ACI and the reference on pixels where neither cast shadow rays (both
 //    are the closed form there: ~0 when the pixels line up).
-//  - ACI at default settings (Method::Aci, RenderSettings defaults), then mc-solid-angle at ACI's
+//  - ACI at default settings (Method::Aci, RenderSettings defaults without the gradient and the
+//    error bound, as `penumbra render` without AOV files), then mc-solid-angle at ACI's
 //    wall time: a first try with round(ACI's rays per viewing ray) samples, a second with the
 //    samples scaled by the time ratio, and while none is within 10% of ACI's time (at most 4
 //    tries) another from the least-squares line time = a + b samples through the tries; the try

@@ -830,6 +830,10 @@ void runJob(RunState& run, size_t slot) {
             }
             RenderSettings settings = job.settings;
             settings.threads = -1;  // share the batch's arena
+            // A batch writes the image alone: as `penumbra render` without AOV files, neither
+            // the gradient nor the error bound is computed.
+            settings.aci.gradient = false;
+            settings.aci.errorBound = false;
             const RenderResult r = render(scene, settings, [&](int done, int total) {
                 std::lock_guard<std::mutex> lock(run.mutex);
                 run.fraction[slot] = double(done) / double(std::max(1, total));
