@@ -298,9 +298,17 @@ Clearance sphereClearance(const AnalyticSphere& s, const Vec3& from, const Vec3&
     return c;
 }
 
+/// An axis-aligned box by its centre and half extents, as the distance below reads it (the
+/// searches along a segment compute these once, not at every step).
+struct BoxFrame {
+    Vec3 c, h;
+    explicit BoxFrame(const AnalyticBox& b) : c(0.5 * (b.lo + b.hi)), h(0.5 * (b.hi - b.lo)) {}
+};
+
 /// Signed distance from p to an axis-aligned box, and its unit gradient.
-double boxDistance(const AnalyticBox& b, const Vec3& p, Vec3* gradient) {
-    const Vec3 c = 0.5 * (b.lo + b.hi), h = 0.5 * (b.hi - b.lo);
+double boxDistance(const BoxFrame& box, const Vec3& p, Vec3* gradient) {
+    const Vec3& c = box.c;
+    const Vec3& h = box.h;
     const Vec3 rel = p - c;
     const Vec3 q = glm::abs(rel) - h;
     const Vec3 sign(rel.x < 0.0 ? -1.0 : 1.0, rel.y < 0.0 ? -1.0 : 1.0, rel.z < 0.0 ? -1.0 : 1.0);
@@ -320,8 +328,9 @@ double boxDistance(const AnalyticBox& b, const Vec3& p, Vec3* gradient) {
 
 /// Signed distance between the segment from + t dir, t in [t0, t1], and a box's surface: the
 /// box's distance is convex along a line, so a golden-section search finds its minimum.
-Clearance boxClearance(const AnalyticBox& b, const Vec3& from, const Vec3& dir, double t0,
+Clearance boxClearance(const AnalyticBox& box, const Vec3& from, const Vec3& dir, double t0,
                        double t1) {
+    const BoxFrame b(box);
     constexpr double kInvPhi = 0.6180339887498949;
     double a = t0, z = t1;
     double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
@@ -531,9 +540,10 @@ double sphereRadius(const AnalyticSphere& sp, const Vec3& m, const Vec3& v) {
 /// The same for an axis-aligned box, whose signed distance is convex: t -> phi(M + t v) / t is
 /// then unimodal on (0, 1], and a golden-section search on it finds its minimum.
 double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
-    const double d0 = boxDistance(box, m, nullptr);
+    const BoxFrame frame(box);
+    const double d0 = boxDistance(frame, m, nullptr);
     if (d0 <= 0.0) return -1e300;
-    auto h = [&](double t) { return boxDistance(box, m + t * v, nullptr) / t; };
+    auto h = [&](double t) { return boxDistance(frame, m + t * v, nullptr) / t; };
     const GoldenSection g = goldenSection(h, 0.0, 1.0, 64, 1e-12);
     const double a = g.a;
     double best = std::min({g.f1, g.f2, h(1.0)});
@@ -552,7 +562,7 @@ double boxSdf(const Box3& b, const Vec3& p) {
     AnalyticBox x;
     x.lo = b.lo;
     x.hi = b.hi;
-    return boxDistance(x, p, nullptr);
+    return boxDistance(BoxFrame(x), p, nullptr);
 }
 
 }  // namespace
