@@ -248,6 +248,76 @@ TEST_CASE("coverage: a finer first-level grid, every error within its bound", "[
     CHECK(r.mean <= 0.0005);
 }
 
+TEST_CASE("coverage: receivers on an analytic box's face and on an analytic sphere",
+          "[aci][coverage]") {
+    // Shadow rays from a point on an obstacle's own surface start on it and leave it. Its
+    // distance along such a segment is smallest (zero) at the start, which says nothing about
+    // any silhouette; taken for one, it put the tangent mode's contour vertices at the receiver
+    // itself (random seed 2 of bench_random: a box's top face 2.5% of the light too dark, 15x
+    // its bound, and gradients of 1e6). Receivers on a slab's top face and on a ball's upper cap,
+    // under small spheres; exact answers from the spheres' caps (the slab and, for the ball's
+    // own points, the ball cannot block a ray leaving its surface towards the light).
+    const RectLight light = test::paperLight();
+    std::mt19937 rng(20261128);
+    std::uniform_real_distribution<double> u01(0.0, 1.0);
+    AnalyticBox slab;
+    slab.lo = Vec3(-3, -3, 0);
+    slab.hi = Vec3(3, 3, 0.3);
+    const AnalyticSphere ball{Vec3(0.3, -0.2, 1.0), 0.5};
+    int violations = 0, points = 0;
+    double worst = 0.0, overBound = 0.0;
+    for (int scene = 0; scene < 10; ++scene) {
+        std::vector<AnalyticSphere> spheres;
+        for (int k = 0; k < 1 + scene % 4; ++k) {
+            const double radius = 0.05 + 0.25 * u01(rng);
+            const double z = 1.8 + radius + (3.5 - 1.8 - 2.0 * radius) * u01(rng);
+            spheres.push_back({Vec3(-1.2 + 2.4 * u01(rng), -1.2 + 2.4 * u01(rng), z), radius});
+        }
+        Occluder occ;
+        occ.add(slab);
+        occ.add(ball);
+        for (const AnalyticSphere& s : spheres) occ.add(s);
+        Occluder::Query q = occ.makeQuery();
+        for (int k = 0; k < 10; ++k) {
+            Receiver r;
+            std::vector<AnalyticSphere> blockers = spheres;
+            if (k % 2 == 0) {
+                r = {Vec3(-2.0 + 4.0 * u01(rng), -2.0 + 4.0 * u01(rng), slab.hi.z), kUp};
+                blockers.push_back(ball);
+            } else {
+                const double theta = 0.35 * std::sqrt(u01(rng)), phi = 2.0 * kPi * u01(rng);
+                const Vec3 n(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi),
+                             std::cos(theta));
+                r = {ball.center + ball.radius * n, n};
+            }
+            const double exact = exactSpheres(r, light, blockers);
+            const double full = unoccludedFormFactor(light, r);
+            const Estimate e = contourIntegral(r, light, q);
+            const double err = std::abs(e.formFactor - exact);
+            CAPTURE(scene, k, r.point, exact, e.formFactor, e.errorBound, full);
+            CHECK(std::isfinite(glm::length(e.gradient)));
+            CHECK(glm::length(e.gradient) < 100.0);
+            if (err > e.errorBound + 1e-12) {
+                ++violations;
+                overBound = std::max(overBound, err / e.errorBound);
+            }
+            worst = std::max(worst, err / full);
+            ++points;
+        }
+    }
+    WARN("receivers on obstacles: " << points << " points, max error " << worst * 100
+                                    << "%, bound violations " << violations
+                                    << " (largest error / bound " << overBound << ")");
+    // Measured at this commit: max error 0.099% (before: 85%, gradients up to 1.7e6), and one
+    // point whose error is 1.10x its bound (2.05e-5 against 1.86e-5, 0.034% of the unoccluded
+    // form factor): a point of the slab under the ball, the same without the slab in the scene
+    // (a ground receiver), so the bound's per-piece model (docs/estimator.md, Error bound) and
+    // not the receiver on an obstacle. Open in issue 11.
+    CHECK(violations <= 1);
+    CHECK(overBound <= 1.25);
+    CHECK(worst <= 0.005);
+}
+
 TEST_CASE("coverage: a point whose first ray's disc covers the light needs one ray",
           "[aci][coverage]") {
     const RectLight light = test::paperLight();
