@@ -229,14 +229,9 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
     auto nearSeg = [&](const Segment& g) { return distanceToSegment(centre, g) < g.width + half; };
     scratch.mDiscs.clear();
     scratch.mNearSegs.clear();
+    // Leaves, and the cells coverage cuts them into, lie in one first-level square.
     const int b = bucketOf(x0, y0, s);
-    if (b < 0) {  // not inside one bucket: everything
-        for (const Disc& d : scratch.mTracedDiscs)
-            if (nearDisc(d)) scratch.mDiscs.push_back(d);
-        for (const Segment& g : scratch.mSegs)
-            if (nearSeg(g)) scratch.mNearSegs.push_back(g);
-        return;
-    }
+    assert(b >= 0);
     for (uint32_t i : scratch.mDiscBuckets[static_cast<size_t>(b)])
         if (nearDisc(scratch.mTracedDiscs[i])) scratch.mDiscs.push_back(scratch.mTracedDiscs[i]);
     for (uint32_t i : scratch.mSegBuckets[static_cast<size_t>(b)])
@@ -272,12 +267,12 @@ void ContourIntegrator::Lattice::addToBuckets(std::vector<std::vector<uint32_t>>
             if (keep(bucketCentre(i, j))) buckets[static_cast<size_t>(j) * p + i].push_back(index);
 }
 
-void ContourIntegrator::Lattice::addDisc(uint32_t index) {
+// Disc `index`, centred on lattice point `at`.
+void ContourIntegrator::Lattice::addDisc(uint32_t index, LatticePoint at) {
     const Disc& d = scratch.mTracedDiscs[index];
     const double r = std::max(d.r, d.ro);
     const double reach = (r + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
-    const Vec2 uv = light.coordinates(d.c);
-    addToBuckets(scratch.mDiscBuckets, index, uv.x * N, uv.y * N, uv.x * N, uv.y * N, reach,
+    addToBuckets(scratch.mDiscBuckets, index, at.a, at.b, at.a, at.b, reach,
                  [&](const Vec3& c) { return glm::length(d.c - c) < reach; });
 }
 

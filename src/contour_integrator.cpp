@@ -65,9 +65,10 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
     // level's square from one of its corners.
     unit = 0.5 * (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;
-    cellReach = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV)) / N;
+    const double diagonal = std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
+    cellReach = 0.5 * diagonal / N;
     // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
-    want = 0.51 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
+    want = 0.51 * diagonal;
     // Other certified rays ask for what covers the first-level squares around a corner from
     // that corner alone (the same as `want` up to p = 2): smaller discs are cheaper to prove,
     // and they stay in few of coverage's buckets.
@@ -75,7 +76,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     const size_t size = static_cast<size_t>(N + 1) * (N + 1);
     if (s.mSettings.coverage && scratch.mCert.size() < size) scratch.mCert.resize(size);
     bucketSide = 2 << n;
-    bucketReach = 0.5 * std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV)) / p;
+    bucketReach = cellReach * bucketSide;
     const double cross = glm::length(glm::cross(l.edgeU, l.edgeV));
     perUnitA = N * glm::length(l.edgeV) / cross;
     perUnitB = N * glm::length(l.edgeU) / cross;
@@ -167,7 +168,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         if (c.radius > 0.0 || c.radiusOthers > 0.0) {
             scratch.mTraced.push_back(static_cast<uint32_t>(idx));
             scratch.mTracedDiscs.push_back({target, c.radius, c.radiusOthers, c.obstacle});
-            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1));
+            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
         }
     }
     return s;

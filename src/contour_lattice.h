@@ -294,7 +294,7 @@ struct ContourIntegrator::Lattice {
     template <class Keep>
     void addToBuckets(std::vector<std::vector<uint32_t>>& buckets, uint32_t index, double a0,
                       double b0, double a1, double b1, double reach, const Keep& keep);
-    void addDisc(uint32_t index);
+    void addDisc(uint32_t index, LatticePoint at);
     void addLeaf(const Leaf& leaf);
     void addSegments(uint32_t seg0);
     int bucketOf(int x0, int y0, int s) const;
