@@ -7,7 +7,8 @@
 // Prints, per ACI mode and Monte Carlo at equal time: rays per point, microseconds per point on
 // one thread, maximum and mean error relative to the unoccluded form factor, and, for the
 // default mode, the median error bound against the median error.
-// Not a test: it only prints figures. Usage: bench_coverage [scenes [points-per-scene]]
+// Not a test: it only prints figures. Usage: bench_coverage [scenes [points-per-scene [analytic|levelset]]]
+// (`analytic`: the exact spheres only, without building level sets; `levelset`: the level sets only).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -115,6 +116,7 @@ void print(const char* occ, const char* name, const Totals& t) {
 int main(int argc, char** argv) {
     const int scenes = argc > 1 ? std::atoi(argv[1]) : 40;
     const int points = argc > 2 ? std::atoi(argv[2]) : 20;
+    const std::string only = argc > 3 ? argv[3] : "";
     const std::vector<Case> cases = makeCases(scenes, points);
     std::printf("%d random scenes of 1-8 spheres, %d receiver points each; light 2 x 2 at height 4; "
                 "errors relative to the unoccluded form factor, against exact answers.\n",
@@ -122,6 +124,7 @@ int main(int argc, char** argv) {
     std::printf("%-10s %-34s %8s %9s %9s %9s %9s %9s %6s\n", "occluder", "method", "rays/pt",
                 "us/pt", "max err", "mean err", "med err", "med bnd", "out");
     for (int kind = 0; kind < 2; ++kind) {
+        if ((only == "analytic" && kind == 1) || (only == "levelset" && kind == 0)) continue;
         std::vector<Occluder> occluders;
         const auto b0 = std::chrono::steady_clock::now();
         for (const Case& c : cases) {
@@ -151,8 +154,19 @@ int main(int argc, char** argv) {
             print(occ, name.c_str(), t);
             if (mode == AciMode::Tangent) def = t;
         }
-        // Monte Carlo (spherical-rectangle sampling) at the default's time per point: the
-        // sample count from a calibration run at 64 samples.
+        {
+            // The default as `penumbra render` runs it without AOV files: no bound, no gradient.
+            AciSettings s;
+            s.gradient = false;
+            s.errorBound = false;
+            ContourIntegrator aci(s);
+            Totals t = run(cases, occluders, [&](const Receiver& r, const RectLight& l,
+                                                 Occluder::Query& q) { return aci.evaluate(r, l, q); });
+            print(occ, "aci tangent, no bound", t);
+            def.seconds = t.seconds;  // Monte Carlo below runs at the time a render spends
+        }
+        // Monte Carlo (spherical-rectangle sampling) at the default's time per point without the
+        // bound: the sample count from a calibration run at 64 samples.
         McSettings mc;
         mc.samples = 64;
         Totals cal = run(cases, occluders, [&](const Receiver& r, const RectLight& l,

@@ -165,9 +165,9 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     if (self.mSettings.coverage) {
         scratch.mCert[idx] = ray.cert;
         const Certificate& c = ray.cert;
-        if (c.radius > 0.0 || c.radiusOthers > 0.0) {
+        if (c.radius > 0.0) {
             scratch.mTraced.push_back(static_cast<uint32_t>(idx));
-            scratch.mTracedDiscs.push_back({target, c.radius, c.radiusOthers, c.obstacle});
+            scratch.mTracedDiscs.push_back({target, c.radius});
             addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
         }
     }

@@ -52,15 +52,12 @@ struct Corner {
 };
 
 struct Disc {
-    Vec3 c;        // centre on the light
-    double r;      // radius of the full certificate (Certificate::radius)
-    double ro;     // radius that excludes every obstacle but `obstacle` (radiusOthers)
-    int obstacle;  // Certificate::obstacle
+    Vec3 c;    // centre on the light
+    double r;  // radius of the certificate (Certificate::radius)
 };
-struct Segment {  // a piece of located contour and the band around it
+struct Segment {  // a piece of located contour
     Vec3 a, b;
-    double width;
-    int own;  // its obstacle, -1 unknown or mixed
+    double width;         // how far from it coverage looks at it
     bool border = false;  // on the border of what emits (exact: nothing to prove near it)
 };
 struct Leaf {  // a square closed by the last pass
@@ -68,10 +65,9 @@ struct Leaf {  // a square closed by the last pass
     int type;  // 0 hidden, 1 visible, 2 contour (segments seg0 .. seg1)
     uint32_t seg0, seg1;
 };
-struct Uncovered {  // a cell of the light no disc or band proves yet
+struct Uncovered {  // a cell of the light no disc proves yet
     double a0, b0, size;  // lattice coordinates
     double gap;           // its centre's distance to the nearest disc that would prove it
-    int own;              // the obstacle of the contour band it is in, -1 none
     Vec3 centre;
     bool exhausted = false;  // every lattice point coverage may ask in it is traced
 };
@@ -244,7 +240,7 @@ struct ContourIntegrator::Lattice {
                          const bool onBorder[4]);
     bool split(int x0, int y0, int k, double thr, int depth, const bool v[4], const bool onBorder[4]);
     Vertex crossing(LatticePoint vis, LatticePoint hid, int steps);
-    const Vertex* knownCrossing(LatticePoint vis, LatticePoint hid) const;
+    const Vertex* knownCrossing(LatticePoint vis, LatticePoint hid);
     Vertex crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
                              LatticePoint& finalHid);
     Vertex vertexBetween(LatticePoint vis, LatticePoint hid, double f);
@@ -271,11 +267,10 @@ struct ContourIntegrator::Lattice {
     // ----- Coverage and the error bound (contour_coverage.cpp) -----
     bool wholeLight();
     double squareFormFactor(int x0, int y0, int s) const;
-    bool cellInDisc(double a0, double b0, double size, int own, const Vec3& centre) const;
-    bool mayHold(const Disc& d, double dist, double reach, int own) const;
+    bool cellInDisc(double a0, double b0, double size, const Vec3& centre) const;
+    bool mayHold(const Disc& d, double dist, double reach) const;
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
-    int bandOwner(const Vec3& centre, double halfDiag) const;
     void uncoveredCells(double a0, double b0, double size, double minSize) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
     double uncoveredFormFactor() const;

@@ -17,6 +17,7 @@
 
 namespace penumbra {
 
+
 namespace {
 
 using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
@@ -169,6 +170,9 @@ struct Occluder::Query::Impl {
     std::vector<std::unique_ptr<LevelSetSlot>> levelSets;
     /// Index-aligned with the occluder's media.
     std::vector<std::unique_ptr<VolumeSampler>> media;
+    /// trace()'s visiting order when a clearance is wanted: (lower bound on the obstacle's
+    /// distance from the segment, obstacle index), nearest first.
+    std::vector<std::pair<double, uint32_t>> order;
 };
 
 Occluder::Query::Query(const Occluder& occluder)
@@ -868,15 +872,36 @@ bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clea
     double best = std::numeric_limits<double>::infinity();
 
     const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
-    for (size_t k = 0; k < count; ++k) {
-        const size_t i = mCandidates ? (*mCandidates)[k] : k;
+    // With a clearance wanted, the obstacles are visited nearest first by a closed-form lower
+    // bound on their distance (the segment's to the sphere around their bounds): one whose bound
+    // exceeds the smallest distance measured so far cannot be the nearest, and its march is
+    // skipped (its bound stands for it).
+    auto& order = mImpl->order;
+    if (clearance) {
+        order.clear();
+        for (size_t k = 0; k < count; ++k) {
+            const size_t i = mCandidates ? (*mCandidates)[k] : k;
+            const Box3& b = mOccluder->bounds(i);
+            if (b.empty()) continue;
+            const Vec3 c = 0.5 * (b.lo + b.hi);
+            const double s = std::clamp(glm::dot(c - from, dir), tMin, length - eps);
+            const double lower = glm::length(from + s * dir - c) - 0.5 * glm::length(b.hi - b.lo);
+            order.emplace_back(std::max(0.0, lower), static_cast<uint32_t>(i));
+        }
+        std::sort(order.begin(), order.end());
+    }
+    const size_t visits = clearance ? order.size() : count;
+    for (size_t k = 0; k < visits; ++k) {
+        const size_t i = clearance ? order[k].second : mCandidates ? (*mCandidates)[k] : k;
         assert(i < mOccluder->size());
         const Box3& bounds = mOccluder->bounds(i);
         if (bounds.empty()) continue;  // Box3::clipRay would accept every ray
         double t = 0.0;
         bool found = false;
+        const bool skipClearance = clearance && order[k].first > 0.0 && order[k].first > clearanceMin;
+        if (skipClearance) boundMin = std::min(boundMin, order[k].first);
         visitKind(i, [&](const auto& kind) {
-            if (clearance) {
+            if (clearance && !skipClearance) {
                 // Over the whole segment, and around the obstacle as far as its distance is
                 // known.
                 bool near = true;

@@ -138,12 +138,14 @@ TEST_CASE("analytic sphere: the error shrinks as steps and grid grow", "[aci]") 
     CHECK(e47 < e27);
     // Defaults (2 x 2 squares, 5 steps): within 0.5% of the unoccluded form factor on average
     // over the line, which is the benchmark's target for penumbra points as well.
-    // Rays: at most 17.5 per penumbra point (coverage's consistency checks and the shorter
-    // Newton reach of the dichotomy cost about two more than the earlier 14). Penumbra points
-    // are those the exact answer puts there: measured 17.03. (Counted, as before, over the
-    // points that spent second-level rays, which include lit points near the sphere: 16.4.)
+    // Rays: at most 32 per penumbra point, measured 30.2 (17.0 while coverage took a disc that
+    // excludes every obstacle but the contour's own as proof within half a first-level square
+    // of a located contour, which missed a capsule's thin shadow reaching past its piece: see
+    // test_coverage.cpp; coverage now proves the ground next to a contour with full discs,
+    // or leaves it to the bound within coverageGap of the piece's strip). Penumbra points are
+    // those the exact answer puts there.
     CHECK(e25 < 0.003);          // measured 0.044% (the "arcs" mode: 0.14%)
-    CHECK(raysDefault <= 17.5);
+    CHECK(raysDefault <= 32.0);
 }
 
 TEST_CASE("analytic sphere: defaults stay within a bounded error at every point", "[aci]") {
@@ -279,10 +281,11 @@ TEST_CASE("tangent mode: a box's corners from the tangent lines, in fewer rays",
              << "tangent " << double(raysT) / points << " rays, error " << errT / unocc
              << "; arcs " << double(raysP) / points << " rays, error " << errP / unocc);
         CHECK(points > 60);
-        // Measured on this line: analytic 20.0 rays at 0.18%, level set 17.3 at 0.40% (arcs:
-        // 76 rays).
+        // Measured on this line: analytic 43.9 rays at 0.14%, level set 55.6 at 0.20% (arcs:
+        // 76 rays at 0.37% and 0.39%). (20.0 and 17.3 rays while coverage trusted discs that
+        // exclude only the other obstacles next to a located contour; see test_coverage.cpp.)
         CHECK(errT / unocc < 0.005);
-        CHECK(raysT < 0.4 * raysP);
+        CHECK(raysT < 0.8 * raysP);
     }
 }
 

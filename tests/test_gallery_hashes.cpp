@@ -53,18 +53,23 @@ struct GalleryCase {
 // The default mode's rows of the level-set scenes (default, table1, vdb_tool) rewritten on
 // 2026-11-28 when a level set's certificate took the exact radius of its solid box and sphere
 // where the cone march proves less (other discs, so other coverage rays; csg, bunny and fog
-// unchanged, and sampleTrilinear is OpenVDB's BoxSampler bit for bit: its own test).
+// unchanged, and sampleTrilinear is OpenVDB's BoxSampler bit for bit: its own test). Every
+// default-mode row rewritten on 2026-11-28 (fourth stop): clearances visit obstacles nearest
+// first and skip those provably farther than the nearest measured (more clearances known, so
+// other Newton steps), a crossing's vertex is shared by every side that holds it, and coverage
+// proves the ground next to a contour with full discs only (the paper's, arcs and Monte
+// Carlo rows unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "cdd8cdef79f8342c"},
+    {"default", "", "ad94baecbdb9ca70"},
     {"default", "--aci-mode paper", "51cf2532df25c8c0"},
     {"default", "--aci-mode arcs", "60cb8adf23369065"},
     {"default", "--method mc-solid-angle --samples 64", "815bb575916f7f50"},
-    {"table1", "", "e7bd8fcd222d976c"},
+    {"table1", "", "2d8ed8986d0cc97c"},
     {"table1", "--aci-mode paper", "3a42e2cdc80eed9f"},
-    {"csg", "", "f1b59311c3756e7d"},
-    {"vdb_tool", "", "c959c7532e03a5e7"},
-    {"bunny", "", "7a2aca465c60fbe3"},
-    {"fog", "", "e4afe13e98f51788"},
+    {"csg", "", "806347ab98b7048b"},
+    {"vdb_tool", "", "6dc6c8b52a092221"},
+    {"bunny", "", "738675e8607ee2e7"},
+    {"fog", "", "e32fa29ba9f3334a"},
 };
 
 }  // namespace
