@@ -146,7 +146,7 @@ double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segmen
 // disc that excludes every obstacle but the piece's own (Certificate::radiusOthers) once did
 // there, as if the piece were that obstacle's whole silhouette near it, and a capsule's thin
 // shadow reaching past the piece into the square went unseen (random scene 5: 2% of the form
-// factor off at 1.3 times the bound; Monte Carlo-free regression test in test_coverage.cpp).
+// factor off at 1.3 times the bound; regression test in test_coverage.cpp).
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
@@ -313,7 +313,7 @@ bool ContourIntegrator::Lattice::forLeavesHolding(LatticePoint q, const F& f) co
 }
 
 // The lattice point where coverage wants its next ray: the centre (or a corner not yet
-// traced) of the uncovered cell of 2 units farthest from what discs and contour bands
+// traced) of the uncovered cell of 2 units farthest from what discs and contour strips
 // prove. False when every uncovered point is within coverageGap x epsilon (epsilon: the
 // final dichotomy interval) of proven ground, so that no shadow or window holding a disc of
 // that radius can hide there, or when `giveUp` (uncoveredFormFactor() then tells what stays

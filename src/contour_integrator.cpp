@@ -300,7 +300,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 continue;
             }
         }
-        // Coverage: rays where no disc and no contour band proves the answer. One that
+        // Coverage: rays where no disc and no contour strip proves the answer. One that
         // contradicts the contour (a shadow or window the pass missed) makes the pass run again,
         // splitting the squares it lies in; every ray is reused.
         LatticePoint q;

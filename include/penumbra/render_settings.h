@@ -76,15 +76,16 @@ struct AciSettings {
     bool midlineCheck = true;
     /// Beyond the paper (tangent mode): certified coverage. Every shadow ray also returns a
     /// Certificate (occluder.h): a disc on the light within which every point has its answer.
-    /// A square may be closed only when discs cover it (a square with a contour: discs that
-    /// exclude every obstacle but the contour's own near the contour, full discs farther away);
-    /// otherwise it is split like a refined square, so any shadow or window that holds a disc of
-    /// a few lattice units is found even when it touches no first-level corner. A point whose
+    /// Rays go where no disc proves the light and no located contour piece is near, and a
+    /// square holding a ray that contradicts the contour is split like a refined square, so any
+    /// shadow or window that holds a disc of a few lattice units is found even when it touches
+    /// no first-level corner. A point whose
     /// first ray's disc covers the whole light needs that one ray. See docs/estimator.md.
     bool coverage = true;
     /// With coverage: rays go to uncovered parts of the light until every uncovered point is
     /// within this many final dichotomy intervals (epsilon, the lattice resolution) of a disc or
-    /// contour band, so any shadow or window that holds a disc of that radius is found. Smaller
+    /// of a located contour piece's strip, so any shadow or window that holds a disc of that
+    /// radius is found (what stays uncovered goes into Estimate::errorBound). Smaller
     /// finds smaller features for more rays.
     double coverageGap = 1.0;
     /// With coverage: at most this many coverage rays per evaluation; what stays uncovered then
