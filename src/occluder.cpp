@@ -17,7 +17,6 @@
 
 namespace penumbra {
 
-
 namespace {
 
 using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
