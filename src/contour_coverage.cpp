@@ -196,7 +196,7 @@ double ContourIntegrator::Lattice::uncoveredFormFactor() const {
 }
 
 // What stays uncovered when coverage stops, for the error bound: each remaining cell is
-// cut down to single lattice units against every disc and band near it, so that the bound
+// cut down to single lattice units against every disc and contour strip near it, so that the bound
 // counts the slivers between discs rather than whole cells.
 double ContourIntegrator::Lattice::finalUncoveredFormFactor() {
     std::vector<Uncovered> coarse;
@@ -215,7 +215,8 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
     const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                        glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
     auto nearDisc = [&](const Disc& d) { return glm::length(d.c - centre) < d.r + half; };
-    auto nearSeg = [&](const Segment& g) { return distanceToSegment(centre, g) < g.width + half; };
+    const double segReach = segmentReach();
+    auto nearSeg = [&](const Segment& g) { return distanceToSegment(centre, g) < segReach + half; };
     scratch.mDiscs.clear();
     scratch.mNearSegs.clear();
     // Leaves, and the cells coverage cuts them into, lie in one first-level square.
@@ -268,7 +269,7 @@ void ContourIntegrator::Lattice::addDisc(uint32_t index, LatticePoint at) {
 void ContourIntegrator::Lattice::addSegments(uint32_t seg0) {
     for (auto i = seg0; i < scratch.mSegs.size(); ++i) {
         const Segment& g = scratch.mSegs[i];
-        const double reach = (g.width + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
+        const double reach = (segmentReach() + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
         const Vec2 ua = light.coordinates(g.a), ub = light.coordinates(g.b);
         addToBuckets(scratch.mSegBuckets, i, std::min(ua.x, ub.x) * N, std::min(ua.y, ub.y) * N,
                      std::max(ua.x, ub.x) * N, std::max(ua.y, ub.y) * N, reach,
@@ -361,7 +362,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         const Uncovered u = cells[far];
         if (u.gap < enough && u.size > kCoverageCell) {
             // Its centre is near proven ground, a farther part of it may not be: look at
-            // its quarters instead (with every disc and band near it).
+            // its quarters instead (with every disc and contour strip near it).
             cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
             gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
             const double h = 0.5 * u.size;
@@ -483,9 +484,6 @@ double ContourIntegrator::Lattice::junctionAllowance(const Vertex& a, const Vert
 void ContourIntegrator::Lattice::recordContourLeaf(int x0, int y0, int s, const Vertex x[4],
                                                    const Piece pieces[2], int nPieces) {
     const uint32_t seg0 = static_cast<uint32_t>(scratch.mSegs.size());
-    // Far enough for coverage's gaps (a cell within coverageGap x epsilon of a piece's strip is
-    // near proven ground) and uncoveredCells' final test (within epsilon of a piece).
-    const double band = (1.0 + self.mSettings.coverageGap) * epsWorld;
     for (int q = 0; q < nPieces; ++q) {
         const Piece& pc = pieces[q];
         const Vertex& a = x[pc.exitSide];
@@ -495,7 +493,7 @@ void ContourIntegrator::Lattice::recordContourLeaf(int x0, int y0, int s, const 
             // The border itself: exact, so a sample near it is what it says (points outside
             // emit nothing, points inside are visible unless a silhouette says otherwise, and
             // those have their own segments).
-            scratch.mSegs.push_back({a.c, b.c, band, true});
+            scratch.mSegs.push_back({a.c, b.c, true});
             continue;
         }
         if (pc.arcOk && !pc.arc.straight) {
@@ -505,8 +503,8 @@ void ContourIntegrator::Lattice::recordContourLeaf(int x0, int y0, int s, const 
         } else if (!pc.arcOk) {
             mid = pc.z.c;
         }
-        scratch.mSegs.push_back({a.c, mid, band});
-        scratch.mSegs.push_back({mid, b.c, band});
+        scratch.mSegs.push_back({a.c, mid});
+        scratch.mSegs.push_back({mid, b.c});
     }
     addSegments(seg0);
     addLeaf({x0, y0, s, 2, seg0, static_cast<uint32_t>(scratch.mSegs.size())});

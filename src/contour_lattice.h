@@ -57,7 +57,6 @@ struct Disc {
 };
 struct Segment {  // a piece of located contour
     Vec3 a, b;
-    double width;         // how far from it coverage looks at it
     bool border = false;  // on the border of what emits (exact: nothing to prove near it)
 };
 struct Leaf {  // a square closed by the last pass
@@ -248,6 +247,7 @@ struct ContourIntegrator::Lattice {
     struct KnownCrossing {
         LatticePoint vis, hid;  // its final bracket
         Vertex v;
+        double at;  // where v lies on the lattice line, in lattice units
     };
     std::vector<KnownCrossing> crossings;  // distance-guided modes: crossings of lattice lines
 
@@ -271,6 +271,10 @@ struct ContourIntegrator::Lattice {
     bool mayHold(const Disc& d, double dist, double reach) const;
     bool cellOutside(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
+    // How far from a contour segment coverage looks at it: its gaps (a cell within coverageGap x
+    // epsilon of a piece's strip is near proven ground) and uncoveredCells' final test (within
+    // epsilon of a piece).
+    double segmentReach() const { return (1.0 + self.mSettings.coverageGap) * epsWorld; }
     void uncoveredCells(double a0, double b0, double size, double minSize) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
     double uncoveredFormFactor() const;

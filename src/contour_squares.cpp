@@ -298,7 +298,13 @@ Vertex ContourIntegrator::Lattice::crossing(LatticePoint vis, LatticePoint hid, 
     }
     LatticePoint fv = vis, fh = hid;
     Vertex v = crossingOnSegment(vis, hid, steps, fv, fh);
-    if (onLine) crossings.push_back({fv, fh, v});
+    if (onLine) {
+        const Vec3 pv = pointOf(fv), ph = pointOf(fh);
+        const double f = glm::dot(v.c - pv, ph - pv) / glm::dot(ph - pv, ph - pv);
+        const bool horizontal = fv.b == fh.b;
+        const int kv = horizontal ? fv.a : fv.b, kd = horizontal ? fh.a : fh.b;
+        crossings.push_back({fv, fh, v, kv + f * (kd - kv)});
+    }
     return v;
 }
 
@@ -324,10 +330,7 @@ const Vertex* ContourIntegrator::Lattice::knownCrossing(LatticePoint vis, Lattic
         if (kh != horizontal || (kh ? k.vis.b : k.vis.a) != line) continue;
         const int kv = kh ? k.vis.a : k.vis.b, kd = kh ? k.hid.a : k.hid.b;
         if ((kv < kd) != (v0 < h0)) continue;
-        // Where the vertex lies on the line, in lattice units.
-        const Vec3 pv = pointOf(k.vis), ph = pointOf(k.hid);
-        const double at = glm::dot(k.v.c - pv, ph - pv) / glm::dot(ph - pv, ph - pv);
-        const double e = kv + at * (kd - kv);
+        const double e = k.at;
         if (!(e > lo && e < hi)) continue;
         const int step = kv < kd ? 1 : -1;
         bool agrees = true;
