@@ -81,6 +81,12 @@ constexpr int kMaxRepasses = 64;        // coverage passes at one level after th
 // shadow of 1.8 intervals' radius could hide between centres (seed 17 of the random sphere scenes).
 constexpr double kCoverageCell = 2.0;
 constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
+// A ray passing closest to a surface within this many ray offsets of its start grazes the
+// receiver's own surface (grazesAtOrigin).
+constexpr double kOwnSurfaceOffsets = 8.0;
+// A contour square wider than this many times its distance from the receiver point is split
+// before its contour is built (nearReceiver).
+constexpr double kNearReceiver = 2.0;
 constexpr double kHalfSqrt2 = 0.7071067811865476;
 
 struct LatticePoint {
@@ -259,6 +265,8 @@ struct ContourIntegrator::Lattice {
     int obstacleOf(LatticePoint q) const;
     double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
+    bool grazesAtOrigin(LatticePoint q) const;
+    bool nearReceiver(int x0, int y0, int s) const;
     Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
                           LatticePoint& finalHid);
     bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc);

@@ -51,6 +51,18 @@ double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
     return (-c * D - glm::dot(g, from - target)) / slope;
 }
 
+// Whether q's ray passes closest to a surface right at its start, within a few ray offsets of
+// the receiver point: the surface there is the receiver's own, met at a grazing angle whose
+// distance gradient says where its tangent plane lies, not where the silhouette runs on the
+// light (on a saddle, such as a torus's inner wall, the surface rises on both sides of that
+// plane). Such a ray gives no tangent line.
+bool ContourIntegrator::Lattice::grazesAtOrigin(LatticePoint q) const {
+    const double h = closestFractionOf(q);
+    if (!(h > 0.0)) return false;
+    const double reach = kOwnSurfaceOffsets * std::abs(self.mSettings.rayOffset);
+    return h * glm::length(pointOf(q) - origin) < reach;
+}
+
 // The unit normal of the plane of grazing rays through the ray to lattice sample q, made
 // exactly perpendicular to that ray (0 when unknown).
 Vec3 ContourIntegrator::Lattice::grazingPlane(LatticePoint q, const Vec3& onContour) const {
@@ -98,12 +110,12 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
         const double fromVis = newtonAlong(at(lo), p0, step);
         if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi)
             return {fromVis,
-                    !staleOf(at(lo)) && fromVis - lo <= kReach &&
+                    !staleOf(at(lo)) && !grazesAtOrigin(at(lo)) && fromVis - lo <= kReach &&
                         obstacleOf(at(lo)) == obstacleOf(at(hi)),
                     lo};
         const double fromHid = newtonAlong(at(hi), p0, step);
         if (std::isfinite(fromHid) && fromHid >= lo && fromHid <= hi)
-            return {fromHid, hi - lo <= 1 && !staleOf(at(hi)), hi};
+            return {fromHid, hi - lo <= 1 && !staleOf(at(hi)) && !grazesAtOrigin(at(hi)), hi};
         const float cl = clearanceOf(at(lo)), ch = clearanceOf(at(hi));
         if (cl > 0.0f && ch < 0.0f)
             return {lo + (hi - lo) * double(cl) / (double(cl) - double(ch)), false, -1};
@@ -152,6 +164,7 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
         const int order[3] = {g.from, lo, hi};
         for (int j : order) {
             if (j < 0) continue;
+            if (grazesAtOrigin(at(j))) continue;
             v.plane = grazingPlane(at(j), v.c);
             if (glm::dot(v.plane, v.plane) == 0.0) continue;
             // The 3D contour point (Fig. 5): where that ray grazes the surface, carried
@@ -230,7 +243,7 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     const double tu = tuv.x, tv = tuv.y;
     const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * N)), x0, x0 + s),
                          std::clamp(static_cast<int>(std::lround(tv * N)), y0, y0 + s)};
-    if (sample(q, false) == kBelowHorizon) return false;
+    if (sample(q, false) == kBelowHorizon || grazesAtOrigin(q)) return false;
     double lambda = newtonAlong(q, m, arc.k - m);
     if (!std::isfinite(lambda)) return false;
     // One Newton step from a sample far from the contour can misplace the shoulder (the
