@@ -267,6 +267,7 @@ struct ContourIntegrator::Lattice {
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
     bool grazesAtOrigin(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;
+    bool arcHolds(const Vertex& a, const Vertex& b, const Vec3& mid, int x0, int y0, int s);
     Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
                           LatticePoint& finalHid);
     bool tangentArc(const Vertex& a, const Vertex& b, int x0, int y0, int s, double thr, Arc& arc);

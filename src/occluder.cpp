@@ -622,7 +622,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         if (vf >= bandF) return {std::max({dBox, vc - hc, bandF}), vc + hc};
         if (vf <= -bandF) return {vc - hc, std::min(vc + hc, -bandF)};
         // Trilinear values of a distance grid: within half a voxel, gradient up to ~1.2.
-        return {vf > 0.0 ? vf / 1.25 - 0.5 * hf : vf * 1.25 - 0.5 * hf,
+        return {vf > 0.0 ? vf / 1.25 : vf * 1.25 - 0.5 * hf,
                 vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25 + 0.5 * hf};
     };
 
