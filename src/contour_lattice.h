@@ -87,6 +87,10 @@ constexpr double kOwnSurfaceOffsets = 8.0;
 // A contour square wider than this many times its distance from the receiver point is split
 // before its contour is built (nearReceiver).
 constexpr double kNearReceiver = 2.0;
+// With coverage, the section 3.2 strip threshold is this fraction of the paper's: finer contour
+// squares make strips that prove more ground, so coverage spends fewer rays (random seed 5 of
+// bench_random: 62.6 -> 51.9 rays per viewing ray, mean difference 0.022 -> 0.010).
+constexpr double kCoverageThreshold = 0.25;
 constexpr double kHalfSqrt2 = 0.7071067811865476;
 
 struct LatticePoint {
@@ -267,6 +271,7 @@ struct ContourIntegrator::Lattice {
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
     bool grazesAtOrigin(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;
+    double coverageThreshold() const { return self.mSettings.coverage ? kCoverageThreshold : 1.0; }
     bool arcHolds(const Vertex& a, const Vertex& b, const Vec3& mid, int x0, int y0, int s);
     Vertex crossingNewton(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
                           LatticePoint& finalHid);

@@ -102,7 +102,7 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
             const double pieceThr =
                 thr >= 0.0 ? thr
                            : stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld) *
-                                 self.mSettings.thresholdScale;
+                                 self.mSettings.thresholdScale * coverageThreshold();
             pieces[q].arcOk = tangentArc(a, b, x0, y0, s, pieceThr, pieces[q].arc);
         }
     }
@@ -127,7 +127,7 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
         if (self.mSettings.coverage) change += junctionAllowance(a, b, c);
         ownThr += stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
     }
-    if (thr < 0.0) thr = ownThr * self.mSettings.thresholdScale;
+    if (thr < 0.0) thr = ownThr * self.mSettings.thresholdScale * coverageThreshold();
 
     if (self.mSettings.refine && k > 0 && change > thr) {
         ++counts.squaresRefined;
