@@ -65,6 +65,30 @@ bool holdsNoCorner(const ShadowDisc& d, int p, double margin) {
     return true;
 }
 
+// The default estimate at a receiver that may sit on an obstacle (its own ray offset), and a
+// Monte Carlo reference of 2^16 rays with its standard deviation.
+struct AgainstMonteCarlo {
+    Estimate aci;
+    double ref, full, sigma;
+};
+AgainstMonteCarlo againstMonteCarlo(const Occluder& occ, Occluder::Query& q, const RectLight& light,
+                                    const Receiver& r) {
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(occ, r.point, 1e-9);
+    McSettings mc;
+    mc.samples = 1 << 16;
+    mc.rayOffset = s.rayOffset;
+    ContourIntegrator aci(s);
+    AgainstMonteCarlo out;
+    out.aci = aci.evaluate(r, light, q);
+    out.ref = monteCarloSolidAngle(r, light, q, mc).formFactor;
+    out.full = unoccludedFormFactor(light, r);
+    const double frac = std::clamp(out.ref / out.full, 0.0, 1.0);
+    out.sigma = out.full * std::sqrt(frac * (1.0 - frac) / mc.samples);
+    return out;
+}
+
 }  // namespace
 
 TEST_CASE("coverage: a small shadow inside one first-level square, touching no corner",
@@ -362,18 +386,9 @@ TEST_CASE("coverage: a thin shadow reaching past its located contour piece (rand
     const RectLight& light = scene.lights.at(0);
     for (const Vec3 p : {Vec3(-0.634085, 2.267012, 0.0), Vec3(0.888946, 3.930314, 0.0)}) {
         const Receiver r{p, kUp};
-        AciSettings s;
-        s.gradient = false;
-        s.rayOffset = receiverRayOffset(occ, p, 1e-9);
-        McSettings mc;
-        mc.samples = 1 << 16;
-        mc.rayOffset = s.rayOffset;
-        ContourIntegrator aci(s);
-        const Estimate e = aci.evaluate(r, light, q);
-        const double ref = monteCarloSolidAngle(r, light, q, mc).formFactor;
-        const double full = unoccludedFormFactor(light, r);
-        const double frac = std::clamp(ref / full, 0.0, 1.0);
-        const double sigma = full * std::sqrt(frac * (1.0 - frac) / mc.samples);
+        const AgainstMonteCarlo m = againstMonteCarlo(occ, q, light, r);
+        const Estimate& e = m.aci;
+        const double ref = m.ref, full = m.full, sigma = m.sigma;
         INFO("point " << p.x << ", " << p.y << ": aci " << e.formFactor << " bound " << e.errorBound
                       << ", reference " << ref << " (sigma " << sigma << "), unoccluded " << full);
         CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 4.0 * sigma);
@@ -407,18 +422,9 @@ TEST_CASE("coverage: a point on a torus' inner wall just under the light (random
     const RectLight& light = scene.lights[0];
     const Vec3 p(0.0629875942, 0.089825072, 3.07057383);
     const Receiver r{p, glm::normalize(Vec3(0.292335527, -0.954182827, 0.0638362954))};
-    AciSettings s;
-    s.gradient = false;
-    s.rayOffset = receiverRayOffset(occ, p, 1e-9);
-    McSettings mc;
-    mc.samples = 1 << 16;
-    mc.rayOffset = s.rayOffset;
-    ContourIntegrator aci(s);
-    const Estimate e = aci.evaluate(r, light, q);
-    const double ref = monteCarloSolidAngle(r, light, q, mc).formFactor;
-    const double full = unoccludedFormFactor(light, r);
-    const double frac = std::clamp(ref / full, 0.0, 1.0);
-    const double sigma = full * std::sqrt(frac * (1.0 - frac) / mc.samples);
+    const AgainstMonteCarlo m = againstMonteCarlo(occ, q, light, r);
+    const Estimate& e = m.aci;
+    const double ref = m.ref, full = m.full, sigma = m.sigma;
     CAPTURE(e.formFactor, e.errorBound, ref, sigma, full);
     REQUIRE(ref < 0.95 * full);  // the torus shadows the point
     CHECK(std::abs(e.formFactor - ref) <= 0.005 * full + 4.0 * sigma);
