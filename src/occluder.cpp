@@ -14,12 +14,15 @@
 #include <stdexcept>
 
 #include "level_set_impl.h"
+#include "level_set_search.h"
 
 namespace penumbra {
 
 namespace {
 
-using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid>;
+// OpenVDB's hierarchical DDA over the level set, with a cell test that catches rays dipping
+// below zero between its samples (level_set_search.h).
+using Intersector = openvdb::tools::LevelSetRayIntersector<openvdb::FloatGrid, CellSearch>;
 
 constexpr double kFarVoxelFactor = kFarFieldFactor;  // companion voxels, in fine voxels
 constexpr float kFarBand = kFarFieldBand;            // companion band, in companion voxels
