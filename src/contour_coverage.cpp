@@ -173,12 +173,20 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     // proven ground too.
     for (const Segment& g : scratch.mNearSegs)
         if (!g.border) u.gap = std::min(u.gap, distanceToSegment(c, g) - epsWorld);
+    u.key = coverageKey(u);
     scratch.mUncovered.push_back(u);
 }
 
 // Narrows an uncovered cell's distance to proven ground by one disc, `dist` from its centre.
 void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d, double dist) {
     u.gap = std::min(u.gap, dist - d.r);
+}
+
+// How far from proven ground a cell may reach: a cell of side s is done when every centre of
+// its cells of kCoverageCell units is near proven ground, i.e. its own centre's gap plus the
+// distance to the farthest of them is small; coverage's next ray goes to the largest.
+double ContourIntegrator::Lattice::coverageKey(const Uncovered& u) const {
+    return u.gap + kHalfSqrt2 * (u.size - kCoverageCell) * unit;
 }
 
 // Form factor of the uncovered cells (the elementary form factor at each centre).
@@ -342,23 +350,25 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
                     cellInDisc(u.a0, u.b0, u.size, u.centre))
                     continue;
                 gapTo(u, d, dist);
-                cells[kept++] = u;
+                if (!u.exhausted) u.key = coverageKey(u);
+                if (&cells[kept] != &u) cells[kept] = u;
+                ++kept;
             }
             cells.resize(kept);
         }
         mScanned = scratch.mTraced.size();
     }
-    // A cell of side s is done when every centre of its cells of kCoverageCell units is
-    // near proven ground: its own centre's gap plus the distance to the farthest of them.
-    auto reach = [&](double size) { return kHalfSqrt2 * (size - kCoverageCell) * unit; };
     const double enough = self.mSettings.coverageGap * epsWorld;
     for (;;) {
+        // The first cell of the largest key (exhausted cells have -inf).
         size_t far = cells.size();
+        double farKey = -std::numeric_limits<double>::infinity();
         for (size_t i = 0; i < cells.size(); ++i)
-            if (cells[i].exhausted) continue;
-            else if (far == cells.size() || cells[i].gap + reach(cells[i].size) > cells[far].gap + reach(cells[far].size))
+            if (cells[i].key > farKey) {
                 far = i;
-        if (giveUp || far == cells.size() || cells[far].gap + reach(cells[far].size) < enough) return false;
+                farKey = cells[i].key;
+            }
+        if (giveUp || far == cells.size() || farKey < enough) return false;
         const Uncovered u = cells[far];
         if (u.gap < enough && u.size > kCoverageCell) {
             // Its centre is near proven ground, a farther part of it may not be: look at
@@ -382,6 +392,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         if (u.size <= kCoverageCell) {
             // Nothing finer to ask here (it still counts in uncoveredFormFactor()).
             cells[far].exhausted = true;
+            cells[far].key = -std::numeric_limits<double>::infinity();
             continue;
         }
         // Every candidate traced and still uncovered: its quarters.

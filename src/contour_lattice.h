@@ -68,6 +68,7 @@ struct Uncovered {  // a cell of the light no disc proves yet
     double a0, b0, size;  // lattice coordinates
     double gap;           // its centre's distance to the nearest disc that would prove it
     Vec3 centre;
+    double key = 0.0;  // coverage's priority (Lattice::coverageKey), -inf once exhausted
     bool exhausted = false;  // every lattice point coverage may ask in it is traced
 };
 
@@ -291,6 +292,7 @@ struct ContourIntegrator::Lattice {
     double segmentReach() const { return (1.0 + self.mSettings.coverageGap) * epsWorld; }
     void uncoveredCells(double a0, double b0, double size, double minSize) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
+    double coverageKey(const Uncovered& u) const;
     double uncoveredFormFactor() const;
     double finalUncoveredFormFactor();
     void gatherNear(int x0, int y0, int s);
