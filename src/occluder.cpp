@@ -558,15 +558,24 @@ double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
     if (d0 < -segmentEpsilon(glm::length(v))) return -1e300;
     const double shift = std::min(d0, 0.0);
     auto h = [&](double t) { return (boxDistance(frame, m + t * v, nullptr) - shift) / t; };
-    const GoldenSection g = goldenSection(h, 0.0, 1.0, 64, 1e-12);
-    const double a = g.a;
+    // The search narrows the bracket [a, z] of the minimum until t -> phi / t can drop inside
+    // it by at most a millionth of the value found (its slope is at most (|v| + |phi|) / t^2,
+    // and t >= a there): a clear radius is shaved by that drop, a depth radius needs no shave
+    // (any sampled depth is a true one). (To 1e-12 always, it took 60 steps and a seventh of
+    // the render on random scenes with boxes.)
+    const double length = glm::length(v);
+    GoldenSection g = goldenSection(h, 0.0, 1.0, 64, 1e-3);
     double best = std::min({g.f1, g.f2, h(1.0)});
-    // The search stops on a bracket of 1e-12: a clear radius is shaved by what t -> phi / t can
-    // drop inside it (its slope is at most (|v| + |phi|) / t^2). A depth radius needs no shave:
-    // any sampled depth is a true one.
+    const double tb0 = std::max(g.a, 1e-6);
+    const double tolerance = 1e-6 * std::max(std::abs(best), 1e-9 * length);
+    const double width = std::max(1e-12, tolerance * tb0 * tb0 / (length + std::abs(best) * tb0));
+    if (g.z - g.a > width) {
+        g = goldenSection(h, g.a, g.z, 64, width);
+        best = std::min({best, g.f1, g.f2});
+    }
     if (best > 0.0) {
-        const double tb = std::max(a, 1e-6);
-        best = std::max(0.0, best - (1e-12 * (glm::length(v) + best * tb) / (tb * tb) + 1e-12));
+        const double tb = std::max(g.a, 1e-6);
+        best = std::max(0.0, best - ((g.z - g.a) * (length + best * tb) / (tb * tb) + 1e-12));
     }
     return best;
 }
