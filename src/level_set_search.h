@@ -11,8 +11,8 @@
 /// through one is sampled on its sides only. Under the default scene's box, rays at 15 degrees
 /// to a face were let through in a salt-and-pepper band of the light, and the box's penumbra
 /// came out too bright in the reference and in Monte Carlo (docs/BENCHMARKS.md). Inside one
-/// cell the interpolant along a line is a cubic polynomial: this test fits it from four values
-/// and finds where it first reaches zero, so that every ray the interpolated surface blocks is
+/// cell the interpolant along a line is a cubic polynomial: this test takes its coefficients from
+/// the cell's eight values and finds where it first reaches zero, so that every ray the interpolated surface blocks is
 /// blocked (grazing rays count as hits), and no other.
 #pragma once
 
@@ -44,12 +44,10 @@ public:
         if (isoValue != 0.0f) throw std::invalid_argument("CellSearch: iso-value must be 0");
         const float voxel = static_cast<float>(grid.voxelSize()[0]);
         mNear = 2.0f * voxel;
-        mDipReach = static_cast<float>(kDipReach) * voxel;
         grid.tree().root().evalActiveBoundingBox(mBox, /*visit voxels*/ false);
     }
     CellSearch(const CellSearch& o)
-        : mGrid(o.mGrid), mAccessor(o.mGrid->getConstAccessor()), mNear(o.mNear),
-          mDipReach(o.mDipReach), mBox(o.mBox) {}
+        : mGrid(o.mGrid), mAccessor(o.mGrid->getConstAccessor()), mNear(o.mNear), mBox(o.mBox) {}
 
     float getIsoValue() const { return 0.0f; }
     bool setIndexRay(const RayT& ray) {
@@ -66,13 +64,6 @@ public:
     RealT getWorldTime() const {
         return mTime * mGrid->transform().baseMap()->applyJacobian(mRay.dir()).length();
     }
-
-    /// How far above zero (in voxels) the smaller end value of a cell may be for the cubic
-    /// test to run: along a unit index-space direction the interpolant's second derivative is at
-    /// most 4 voxels per voxel squared when neighbouring values differ by at most a voxel (a
-    /// distance grid), so over a cell's longest chord (sqrt 3) it lies at most 1.5 voxels below
-    /// the line through its end values.
-    static constexpr double kDipReach = 1.5;
 
 private:
     template <typename, int>
@@ -97,11 +88,10 @@ private:
         mEntry = time;
         float v;
         if (!mAccessor.probeValue(ijk, v) || !(v > -mNear && v < mNear)) return false;
-        // The interpolant at the ray's entry, a third and two thirds of the way, and its exit,
-        // from the cell's eight values.
-        double f[4];
-        cellValues(ijk, entry, time, f);
-        const double v1 = f[3];
+        const Cell cell = this->cell(ijk);
+        const VecT base(ijk.x(), ijk.y(), ijk.z());
+        const VecT u1 = local(mRay(time), base);
+        const double v1 = cell.at(u1);
         if (mV0 * v1 <= 0.0) {
             // A sign change since the last sample: the crossing between them, by linear
             // interpolation (as OpenVDB's test places it).
@@ -109,13 +99,17 @@ private:
             mTime = d != 0.0 ? mT0 + (time - mT0) * (mV0 / d) : mT0;
             return true;
         }
-        if (v1 > 0.0 && std::min(f[0], v1) < mDipReach && time > entry) {
-            if (f[0] <= 0.0) {
+        if (v1 > 0.0 && time > entry) {
+            // Both ends outside: does the cubic between them reach zero?
+            const VecT u0 = local(mRay(entry), base);
+            double p[4];
+            cell.along(u0, u1 - u0, p);
+            if (p[0] <= 0.0) {
                 mTime = entry;
                 return true;
             }
             double s;
-            if (firstBelow(f, s)) {
+            if (firstZero(p, v1, s)) {
                 mTime = entry + (time - entry) * s;
                 return true;
             }
@@ -125,14 +119,31 @@ private:
         return false;
     }
 
-    /// The interpolant at ray time t.
-    double value(RealT t) { return sampleTrilinear(mAccessor, mRay(t)); }
+    /// A cell's trilinear interpolant, f = a + bx x + by y + bz z + cxy xy + cxz xz + cyz yz
+    /// + cxyz xyz on the unit cube.
+    struct Cell {
+        double a, bx, by, bz, cxy, cxz, cyz, cxyz;
+        double at(const VecT& u) const {
+            return a + bx * u[0] + by * u[1] + bz * u[2] + cxy * u[0] * u[1] + cxz * u[0] * u[2] +
+                   cyz * u[1] * u[2] + cxyz * u[0] * u[1] * u[2];
+        }
+        /// The cubic p[0] + p[1] s + p[2] s^2 + p[3] s^3 = f(u0 + s d).
+        void along(const VecT& u0, const VecT& d, double p[4]) const {
+            const double x = u0[0], y = u0[1], z = u0[2], dx = d[0], dy = d[1], dz = d[2];
+            p[0] = at(u0);
+            p[1] = bx * dx + by * dy + bz * dz + cxy * (x * dy + y * dx) + cxz * (x * dz + z * dx) +
+                   cyz * (y * dz + z * dy) + cxyz * (dx * y * z + x * dy * z + x * y * dz);
+            p[2] = cxy * dx * dy + cxz * dx * dz + cyz * dy * dz +
+                   cxyz * (dx * dy * z + dx * y * dz + x * dy * dz);
+            p[3] = cxyz * dx * dy * dz;
+        }
+    };
 
-    /// The interpolant of cell ijk at four points of the ray between times t0 and t1.
-    void cellValues(const openvdb::Coord& ijk, RealT t0, RealT t1, double f[4]) {
+    /// The interpolant of voxel ijk's cell (its corners ijk to ijk + (1, 1, 1)).
+    Cell cell(const openvdb::Coord& ijk) {
         using Leaf = GridT::TreeType::LeafNodeType;
         constexpr int kLast = int(Leaf::DIM) - 1;
-        float c[2][2][2];
+        double c[2][2][2];
         const Leaf* leaf = nullptr;
         if ((ijk.x() & kLast) != kLast && (ijk.y() & kLast) != kLast && (ijk.z() & kLast) != kLast)
             leaf = mAccessor.probeConstLeaf(ijk);
@@ -141,42 +152,43 @@ private:
             const openvdb::Index o = Leaf::coordToOffset(ijk);
             for (int i = 0; i < 2; ++i)
                 for (int j = 0; j < 2; ++j)
-                    for (int k = 0; k < 2; ++k)
-                        c[i][j][k] = leaf->getValue(o + i * dx + j * dy + k);
+                    for (int k = 0; k < 2; ++k) c[i][j][k] = leaf->getValue(o + i * dx + j * dy + k);
         } else {
             for (int i = 0; i < 2; ++i)
                 for (int j = 0; j < 2; ++j)
-                    for (int k = 0; k < 2; ++k)
-                        c[i][j][k] = mAccessor.getValue(ijk.offsetBy(i, j, k));
+                    for (int k = 0; k < 2; ++k) c[i][j][k] = mAccessor.getValue(ijk.offsetBy(i, j, k));
         }
-        const VecT base(ijk.x(), ijk.y(), ijk.z());
-        for (int n = 0; n < 4; ++n) {
-            VecT u = mRay(t0 + (t1 - t0) * (n / 3.0)) - base;
-            for (int a = 0; a < 3; ++a) u[a] = std::clamp(u[a], 0.0, 1.0);
-            const double x00 = c[0][0][0] + (c[1][0][0] - c[0][0][0]) * u[0];
-            const double x01 = c[0][0][1] + (c[1][0][1] - c[0][0][1]) * u[0];
-            const double x10 = c[0][1][0] + (c[1][1][0] - c[0][1][0]) * u[0];
-            const double x11 = c[0][1][1] + (c[1][1][1] - c[0][1][1]) * u[0];
-            const double y0 = x00 + (x10 - x00) * u[1], y1 = x01 + (x11 - x01) * u[1];
-            f[n] = y0 + (y1 - y0) * u[2];
-        }
+        Cell f;
+        f.a = c[0][0][0];
+        f.bx = c[1][0][0] - c[0][0][0];
+        f.by = c[0][1][0] - c[0][0][0];
+        f.bz = c[0][0][1] - c[0][0][0];
+        f.cxy = c[1][1][0] - c[1][0][0] - c[0][1][0] + c[0][0][0];
+        f.cxz = c[1][0][1] - c[1][0][0] - c[0][0][1] + c[0][0][0];
+        f.cyz = c[0][1][1] - c[0][1][0] - c[0][0][1] + c[0][0][0];
+        f.cxyz = c[1][1][1] - c[1][1][0] - c[1][0][1] - c[0][1][1] + c[1][0][0] + c[0][1][0] +
+                 c[0][0][1] - c[0][0][0];
+        return f;
     }
 
-    /// Whether the cubic through f at s = 0, 1/3, 2/3, 1 (f[0] and f[3] above zero) goes to
-    /// zero or below; s is then where it first does.
-    static bool firstBelow(const double f[4], double& s) {
-        if (f[1] <= 0.0 || f[2] <= 0.0) {
-            const double sa = f[1] <= 0.0 ? 0.0 : 1.0 / 3.0;
-            s = firstRoot(f, sa, sa + 1.0 / 3.0);
-            return true;
-        }
-        // p(s) = f0 + c1 s + c2 s^2 + c3 s^3; its interior minima are roots of p'.
-        const double c1 = 0.5 * (-11.0 * f[0] + 18.0 * f[1] - 9.0 * f[2] + 2.0 * f[3]);
-        const double c2 = 4.5 * (2.0 * f[0] - 5.0 * f[1] + 4.0 * f[2] - f[3]);
-        const double c3 = 4.5 * (-f[0] + 3.0 * f[1] - 3.0 * f[2] + f[3]);
+    /// A point's coordinates in the cell at `base`, clamped to it (the ends of the ray's stretch
+    /// in the cell lie on its sides up to rounding).
+    static VecT local(const VecT& x, const VecT& base) {
+        VecT u = x - base;
+        for (int a = 0; a < 3; ++a) u[a] = std::clamp(u[a], 0.0, 1.0);
+        return u;
+    }
+
+    /// Whether the cubic p on [0, 1] (p(0) > 0, p(1) = v1 > 0 up to rounding) reaches zero
+    /// inside; s is then where it first does.
+    static bool firstZero(const double p[4], double v1, double& s) {
+        // p lies above its chord less s (1 - s) (p2 + p3 (1 + s)), at most (|p2| + 2 |p3|) / 4
+        // below it: nothing to look for when both ends are higher (almost every cell).
+        if (std::min(p[0], v1) > 0.25 * (std::abs(p[2]) + 2.0 * std::abs(p[3]))) return false;
+        // Its interior minima: roots of p'(s) = p1 + 2 p2 s + 3 p3 s^2.
         double roots[2];
         int n = 0;
-        const double a = 3.0 * c3, b = 2.0 * c2, c = c1;
+        const double a = 3.0 * p[3], b = 2.0 * p[2], c = p[1];
         if (std::abs(a) <= 1e-12 * (std::abs(b) + std::abs(c))) {
             if (b != 0.0) roots[n++] = -c / b;
         } else {
@@ -187,14 +199,20 @@ private:
                 roots[n++] = q / a;
             }
         }
-        std::sort(roots, roots + n);
+        if (n == 2 && roots[1] < roots[0]) std::swap(roots[0], roots[1]);
         double prev = 0.0;
         for (int i = 0; i < n; ++i) {
             const double r = roots[i];
             if (!(r > 0.0 && r < 1.0)) continue;
-            if (f[0] + r * (c1 + r * (c2 + r * c3)) <= 0.0) {
-                // p falls monotonically from prev (above zero) to r: one root between.
-                s = firstRoot(f, prev, r);
+            if (cubic(p, r) <= 0.0) {
+                // p falls monotonically from prev (above zero) to r: its root between, by
+                // bisection.
+                double lo = prev, hi = r;
+                for (int k = 0; k < 40; ++k) {
+                    const double m = 0.5 * (lo + hi);
+                    (cubic(p, m) > 0.0 ? lo : hi) = m;
+                }
+                s = hi;
                 return true;
             }
             prev = r;
@@ -202,23 +220,14 @@ private:
         return false;
     }
 
-    /// The root of the cubic through f at s = 0, 1/3, 2/3, 1 in [sa, sb], where it goes from
-    /// above zero (at sa) to zero or below (at sb), by bisection.
-    static double firstRoot(const double f[4], double sa, double sb) {
-        const double c1 = 0.5 * (-11.0 * f[0] + 18.0 * f[1] - 9.0 * f[2] + 2.0 * f[3]);
-        const double c2 = 4.5 * (2.0 * f[0] - 5.0 * f[1] + 4.0 * f[2] - f[3]);
-        const double c3 = 4.5 * (-f[0] + 3.0 * f[1] - 3.0 * f[2] + f[3]);
-        for (int i = 0; i < 40; ++i) {
-            const double m = 0.5 * (sa + sb);
-            (f[0] + m * (c1 + m * (c2 + m * c3)) > 0.0 ? sa : sb) = m;
-        }
-        return sb;
-    }
+    static double cubic(const double p[4], double s) { return p[0] + s * (p[1] + s * (p[2] + s * p[3])); }
+
+    /// The interpolant at ray time t.
+    double value(RealT t) { return sampleTrilinear(mAccessor, mRay(t)); }
 
     const GridT* mGrid;
     GridT::ConstAccessor mAccessor;
     float mNear = 0.0f;      // voxels whose value is within this of zero are tested
-    float mDipReach = 0.0f;  // kDipReach in world units
     openvdb::math::CoordBBox mBox;
     RayT mRay;
     RealT mTime = 0.0;  // the hit's time along the index-space ray
