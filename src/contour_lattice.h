@@ -83,8 +83,11 @@ constexpr int kMaxRepasses = 64;        // coverage passes at one level after th
 constexpr double kCoverageCell = 2.0;
 constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
 // A ray passing closest to a surface within this many ray offsets of its start grazes the
-// receiver's own surface (grazesAtOrigin).
+// receiver's own surface (untrustedTangent).
 constexpr double kOwnSurfaceOffsets = 8.0;
+// A ray whose closest approach to a level set is so near its start that one of its voxels spans
+// more than this many lattice units on the light gives no tangent (untrustedTangent).
+constexpr double kMagnifiedVoxel = 16.0;
 // A contour square wider than this many times its distance from the receiver point is split
 // before its contour is built (nearReceiver).
 constexpr double kNearReceiver = 2.0;
@@ -270,7 +273,7 @@ struct ContourIntegrator::Lattice {
     int obstacleOf(LatticePoint q) const;
     double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
-    bool grazesAtOrigin(LatticePoint q) const;
+    bool untrustedTangent(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;
     double coverageThreshold() const { return self.mSettings.coverage ? kCoverageThreshold : 1.0; }
     bool arcHolds(const Vertex& a, const Vertex& b, const Vec3& mid, int x0, int y0, int s);

@@ -119,6 +119,7 @@ Occluder::Occluder(std::vector<ObstacleShape> shapes) {
 void Occluder::add(ObstacleShape shape) {
     Box3 b;
     Solid solid;
+    double voxel = 0.0;
     if (const auto* s = std::get_if<AnalyticSphere>(&shape)) {
         b.lo = s->center - Vec3(s->radius);
         b.hi = s->center + Vec3(s->radius);
@@ -138,12 +139,14 @@ void Occluder::add(ObstacleShape shape) {
             b.hi += Vec3(ls->voxelSize());
         }
         mMinVoxel = mMinVoxel == 0.0 ? ls->voxelSize() : std::min(mMinVoxel, ls->voxelSize());
+        voxel = ls->voxelSize();
         solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius()};
         if (b.empty()) solid = {b, Vec3(0.0), 0.0};
     }
     mShapes.push_back(std::move(shape));
     mBounds.push_back(b);
     mSolid.push_back(solid);
+    mVoxel.push_back(voxel);
     const auto* ls = std::get_if<LevelSetPtr>(&mShapes.back());
     mFar.push_back(ls && *ls ? std::make_shared<FarField>(*ls) : nullptr);
 }

@@ -130,6 +130,8 @@ public:
     const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
     /// Smallest voxel size over the level sets, 0 when there are none.
     double minVoxelSize() const { return mMinVoxel; }
+    /// Obstacle i's voxel size: 0 for an analytic shape.
+    double voxelSize(size_t i) const { return mVoxel[i]; }
 
     class Query;
     Query makeQuery() const;
@@ -154,6 +156,7 @@ private:
         double radius = 0.0;
     };
     std::vector<Solid> mSolid;  // index-aligned with mShapes
+    std::vector<double> mVoxel;  // index-aligned with mShapes; 0 if analytic
     double mMinVoxel = 0.0;
     std::vector<Medium> mMedia;
     std::vector<Box3> mMediumBounds;
@@ -235,6 +238,9 @@ public:
 
     uint64_t raysCast() const { return mRays; }
     void resetCount() { mRays = 0; }
+
+    /// The occluder this query answers for.
+    const Occluder& occluder() const { return *mOccluder; }
 
 private:
     // occluded() with `known` < 0; with known = 0 or 1 the answer is taken as given and only
