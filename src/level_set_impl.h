@@ -95,31 +95,36 @@ auto withVdbErrors(const std::string& file, const std::string& where, Read&& rea
     }
 }
 
+/// The eight values of the trilinear cell whose lowest corner is voxel ijk (data[i][j][k] at
+/// ijk + (i, j, k)), read straight from one leaf when the cell lies inside one; false (nothing
+/// read) when it crosses a leaf's border or no leaf holds it.
+template <typename Accessor>
+inline bool leafCellValues(Accessor& acc, const openvdb::Coord& ijk, float data[2][2][2]) {
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    constexpr int kLast = int(Leaf::DIM) - 1;
+    if ((ijk.x() & kLast) == kLast || (ijk.y() & kLast) == kLast || (ijk.z() & kLast) == kLast)
+        return false;
+    const Leaf* leaf = acc.probeConstLeaf(ijk);
+    if (!leaf) return false;
+    constexpr openvdb::Index dx = 1u << (2 * Leaf::LOG2DIM), dy = 1u << Leaf::LOG2DIM;
+    const openvdb::Index o = Leaf::coordToOffset(ijk);
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 2; ++j)
+            for (int k = 0; k < 2; ++k) data[i][j][k] = leaf->getValue(o + i * dx + j * dy + k);
+    return true;
+}
+
 /// openvdb::tools::BoxSampler::sample(acc, xyz) (trilinear, index space), bit for bit, read
 /// faster: when the cell's eight voxels lie in one leaf (343 of its 512 cells) they are read
 /// straight from that leaf, one accessor lookup instead of eight; otherwise through BoxSampler.
 /// Shadow rays' distance marches spend most of their time here.
 template <class Accessor>
 inline float sampleTrilinear(Accessor& acc, const openvdb::Vec3d& xyz) {
-    using Leaf = openvdb::FloatTree::LeafNodeType;
-    constexpr int kLast = int(Leaf::DIM) - 1;
     const openvdb::Coord ijk(int(std::floor(xyz[0])), int(std::floor(xyz[1])), int(std::floor(xyz[2])));
-    if ((ijk.x() & kLast) != kLast && (ijk.y() & kLast) != kLast && (ijk.z() & kLast) != kLast) {
-        if (const Leaf* leaf = acc.probeConstLeaf(ijk)) {
-            constexpr openvdb::Index dx = 1u << (2 * Leaf::LOG2DIM), dy = 1u << Leaf::LOG2DIM;
-            const openvdb::Index o = Leaf::coordToOffset(ijk);
-            float data[2][2][2];
-            data[0][0][0] = leaf->getValue(o);
-            data[0][0][1] = leaf->getValue(o + 1);
-            data[0][1][0] = leaf->getValue(o + dy);
-            data[0][1][1] = leaf->getValue(o + dy + 1);
-            data[1][0][0] = leaf->getValue(o + dx);
-            data[1][0][1] = leaf->getValue(o + dx + 1);
-            data[1][1][0] = leaf->getValue(o + dx + dy);
-            data[1][1][1] = leaf->getValue(o + dx + dy + 1);
-            const openvdb::Vec3d uvw(xyz[0] - ijk.x(), xyz[1] - ijk.y(), xyz[2] - ijk.z());
-            return openvdb::tools::BoxSampler::trilinearInterpolation(data, uvw);
-        }
+    float data[2][2][2];
+    if (leafCellValues(acc, ijk, data)) {
+        const openvdb::Vec3d uvw(xyz[0] - ijk.x(), xyz[1] - ijk.y(), xyz[2] - ijk.z());
+        return openvdb::tools::BoxSampler::trilinearInterpolation(data, uvw);
     }
     return openvdb::tools::BoxSampler::sample(acc, xyz);
 }

@@ -11,9 +11,9 @@
 /// through one is sampled on its sides only. Under the default scene's box, rays at 15 degrees
 /// to a face were let through in a salt-and-pepper band of the light, and the box's penumbra
 /// came out too bright in the reference and in Monte Carlo (docs/BENCHMARKS.md). Inside one
-/// cell the interpolant along a line is a cubic polynomial: this test takes its coefficients from
-/// the cell's eight values and finds where it first reaches zero, so that every ray the interpolated surface blocks is
-/// blocked (grazing rays count as hits), and no other.
+/// cell the interpolant along a line is a cubic polynomial: this test takes its coefficients
+/// from the cell's eight values and finds where it first reaches zero, so that every ray the
+/// interpolated surface blocks is blocked (grazing rays count as hits), and no other.
 #pragma once
 
 #include <openvdb/math/DDA.h>
@@ -21,8 +21,8 @@
 #include <openvdb/openvdb.h>
 
 #include <algorithm>
-#include <cassert>
 #include <cmath>
+#include <stdexcept>
 
 #include "level_set_impl.h"
 
@@ -141,23 +141,16 @@ private:
 
     /// The interpolant of voxel ijk's cell (its corners ijk to ijk + (1, 1, 1)).
     Cell cell(const openvdb::Coord& ijk) {
-        using Leaf = GridT::TreeType::LeafNodeType;
-        constexpr int kLast = int(Leaf::DIM) - 1;
-        double c[2][2][2];
-        const Leaf* leaf = nullptr;
-        if ((ijk.x() & kLast) != kLast && (ijk.y() & kLast) != kLast && (ijk.z() & kLast) != kLast)
-            leaf = mAccessor.probeConstLeaf(ijk);
-        if (leaf) {
-            constexpr openvdb::Index dx = 1u << (2 * Leaf::LOG2DIM), dy = 1u << Leaf::LOG2DIM;
-            const openvdb::Index o = Leaf::coordToOffset(ijk);
+        float values[2][2][2];
+        if (!leafCellValues(mAccessor, ijk, values)) {
             for (int i = 0; i < 2; ++i)
                 for (int j = 0; j < 2; ++j)
-                    for (int k = 0; k < 2; ++k) c[i][j][k] = leaf->getValue(o + i * dx + j * dy + k);
-        } else {
-            for (int i = 0; i < 2; ++i)
-                for (int j = 0; j < 2; ++j)
-                    for (int k = 0; k < 2; ++k) c[i][j][k] = mAccessor.getValue(ijk.offsetBy(i, j, k));
+                    for (int k = 0; k < 2; ++k) values[i][j][k] = mAccessor.getValue(ijk.offsetBy(i, j, k));
         }
+        double c[2][2][2];
+        for (int i = 0; i < 2; ++i)
+            for (int j = 0; j < 2; ++j)
+                for (int k = 0; k < 2; ++k) c[i][j][k] = values[i][j][k];
         Cell f;
         f.a = c[0][0][0];
         f.bx = c[1][0][0] - c[0][0][0];
@@ -220,7 +213,9 @@ private:
         return false;
     }
 
-    static double cubic(const double p[4], double s) { return p[0] + s * (p[1] + s * (p[2] + s * p[3])); }
+    static double cubic(const double p[4], double s) {
+        return p[0] + s * (p[1] + s * (p[2] + s * p[3]));
+    }
 
     /// The interpolant at ray time t.
     double value(RealT t) { return sampleTrilinear(mAccessor, mRay(t)); }

@@ -138,8 +138,8 @@ void Occluder::add(ObstacleShape shape) {
             b.lo -= Vec3(ls->voxelSize());
             b.hi += Vec3(ls->voxelSize());
         }
-        mMinVoxel = mMinVoxel == 0.0 ? ls->voxelSize() : std::min(mMinVoxel, ls->voxelSize());
         voxel = ls->voxelSize();
+        mMinVoxel = mMinVoxel == 0.0 ? voxel : std::min(mMinVoxel, voxel);
         solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius()};
         if (b.empty()) solid = {b, Vec3(0.0), 0.0};
     }
