@@ -599,11 +599,10 @@ double boxSdf(const Box3& b, const Vec3& p) {
 /// A cone march: the segment's cone of radius rho at the light is proven free while balls of
 /// the bounded distance around points of the segment contain its cross-sections, and rho shrinks
 /// (at least halving) when a ball is too small. A segment that goes inside is then sampled for
-/// its depth. `floor` > 0: a clear radius the caller already holds (the solid's box or sphere);
-/// the march gives up (returning 0) once its cone would shrink below it.
+/// its depth.
 static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
                              double coarseError, const Box3& bounds, const Vec3& m, const Vec3& v,
-                             double want, bool blocked, double tHit, double floor) {
+                             double want, bool blocked, double tHit) {
     const double length = glm::length(v);
     const double hc = coarseError;
     const double bandC = 0.98 * double(coarse.background());
@@ -623,7 +622,22 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     struct Range {
         double lo, hi;
     };
+    // In the fine band its value alone bounds phi: trilinear values of a distance grid lie
+    // within half a voxel, with a gradient up to ~1.2.
+    auto fineRange = [&](double vf) -> Range {
+        return {vf > 0.0 ? vf / 1.25 : vf * 1.25 - 0.5 * hf,
+                vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25 + 0.5 * hf};
+    };
+    // Whether the last point's fine value lay inside the fine band: the next point, close by,
+    // reads the fine grid first and skips the box and the companion when it is still there.
+    bool nearSurface = false;
     auto range = [&](const Vec3& p, double need) -> Range {
+        double vf = std::numeric_limits<double>::quiet_NaN();
+        if (nearSurface) {
+            vf = sample(*slot.grid, slot.accessor, p);
+            if (std::abs(vf) < bandF) return fineRange(vf);
+            nearSurface = false;
+        }
         const double dBox = boxSdf(bounds, p);
         // Far from the bounds the box says as much as the companion could (the band ends there).
         if (dBox >= std::min(need, bandC) && dBox > 0.0) return {dBox, 1e300};
@@ -631,24 +645,27 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         if (vc >= bandC) return {std::max(dBox, bandC - hc), 1e300};
         if (vc <= -bandC) return {-1e300, -(bandC - hc)};
         if (std::abs(vc) > bandF + 2.0 * hc) return {std::max(dBox, vc - hc), vc + hc};
-        const double vf = sample(*slot.grid, slot.accessor, p);
+        if (std::isnan(vf)) vf = sample(*slot.grid, slot.accessor, p);
         // Beyond the fine band the surface is at least the band away (inactive values are the
         // band's width, with the sign of the side).
         if (vf >= bandF) return {std::max({dBox, vc - hc, bandF}), vc + hc};
         if (vf <= -bandF) return {vc - hc, std::min(vc + hc, -bandF)};
-        // Trilinear values of a distance grid: within half a voxel, gradient up to ~1.2.
-        return {vf > 0.0 ? vf / 1.25 : vf * 1.25 - 0.5 * hf,
-                vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25 + 0.5 * hf};
+        nearSurface = true;
+        return fineRange(vf);
     };
 
     // A blocked segment whose first hit lies in these bounds: its depth from there.
     double t = 0.0;
     bool inside = false;
     if (tHit >= 0.0) {
-        t = tHit;
+        // The hit is on the surface, where nothing is proven deep: the first point a voxel on.
+        t = tHit + hf / length;
         inside = true;
+        nearSurface = true;
     } else {
-        // Clear part: the cone march. Radii under rhoMin are not worth the steps they take.
+        // Clear part: the cone march. Radii under a 64th of `want` are not worth the steps
+        // they take. (Small discs matter to coverage: with an eighth, coverage ran out of rays
+        // more often and random scene 1 kept 14 pixels over 6 units off, against none.)
         const double rhoMin = want / 64.0;
         double rho = want;
         for (int it = 0; it < 400; ++it) {
@@ -658,7 +675,6 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
             if (r.lo < 1.25 * rho * t) {
                 // Too close for this cone to step on by at least a fifth of the ball: narrow it.
                 rho = 0.7 * r.lo / t;
-                if (rho <= floor) return 0.0;
                 if (rho < rhoMin) break;
             }
             const double next = (r.lo + length * t) / (length + rho);
@@ -669,21 +685,31 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     }
     if (!inside) return 0.0;
     // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
-    // the largest -hi / t over points inside, until it reaches `want`.
+    // the largest -hi / t over points inside, until it reaches `want`. Any inner point proves
+    // its own disc, so the points need not be dense: each step goes at least half as far again
+    // as the distance from the entry (a chord is crossed in a dozen points, not hundreds), and
+    // the march ends once the value has fallen to half its best (past the chord's deep part).
     double depth = 0.0;
     bool wasInside = false;
-    for (int it = 0; it < 400 && t <= 1.0; ++it) {
+    const double entry = tHit >= 0.0 ? tHit : t;
+    for (int it = 0; it < 200 && t <= 1.0; ++it) {
         const Vec3 p = m + t * v;
         const Range r = range(p, 0.0);
         if (r.hi < 0.0) {
-            depth = std::max(depth, -r.hi / std::max(t, 1e-12));
-            if (depth >= want) return -want;
+            const double d = -r.hi / std::max(t, 1e-12);
+            if (d >= want) return -want;
+            if (d < 0.5 * depth) break;
+            depth = std::max(depth, d);
             wasInside = true;
         } else if (wasInside && r.lo > 0.0) {
             break;  // out again: later entries are other chords, not needed for a bound
         }
+        // A ball of radius |hi| around an inner point is inside: the next point, that far on,
+        // is still inside unless the chord ends there.
         const double mag = std::min(std::abs(r.hi), std::abs(r.lo));
-        t += std::max(0.5 * (std::isfinite(mag) && mag < 1e299 ? mag : hc), 0.5 * hf) / length;
+        const double step = std::max({std::isfinite(mag) && mag < 1e299 ? mag : hc, 0.5 * hf,
+                                      0.5 * (t - entry) * length});
+        t += step / length;
     }
     return -depth;
 }
@@ -823,8 +849,9 @@ struct LevelSetKind {
         if (!slot) return want;
         // Every point the tracer can hit lies in the solid's box and in its sphere
         // (LevelSet::solidBoundsWS): a segment clear of either is clear of the level set, with
-        // their exact radii. Often as large as the march could prove (a sphere's or an upright
-        // box's level set), and in closed form; the march then runs only to beat it.
+        // their exact radii, in closed form. The march runs only where neither proves anything:
+        // beating them took it 10-30 steps a segment, for discs that saved coverage 1-2% of its
+        // rays and cost 10% of the render (random scenes 1 and 6).
         double solidR = 0.0;
         if (tHitFraction < 0.0) {
             AnalyticSphere sphere;
@@ -837,11 +864,10 @@ struct LevelSetKind {
                 box.hi = solidBox.hi;
                 solidR = std::max(solidR, boxRadius(box, m, v));
             }
-            if (solidR >= want) return want;
+            if (solidR > 0.0) return std::min(solidR, want);
         }
-        const double r = levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
-                                        tHitFraction, solidR);
-        return solidR > 0.0 ? std::max(r, solidR) : r;
+        return levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
+                              tHitFraction);
     }
 };
 
