@@ -335,32 +335,90 @@ double boxDistance(const BoxFrame& box, const Vec3& p, Vec3* gradient) {
     return q[k];
 }
 
-/// Signed distance between the segment from + t dir, t in [t0, t1], and a box's surface: the
-/// box's distance is convex along a line, so a golden-section search finds its minimum.
+/// Calls piece(lo, hi, alpha, beta, out) for each piece [lo, hi] of [t0, t1] on which the line
+/// m + t v stays on one side of each of the box's face planes and slab middle planes. There each
+/// axis's term sign_i (m_i + t v_i - c_i) - h_i is alpha_i + beta_i t, and out[i] says whether it
+/// is positive: the box's signed distance is the norm of the positive terms outside the box and
+/// the largest term inside (boxDistance).
+template <class F>
+void forBoxPieces(const BoxFrame& box, const Vec3& m, const Vec3& v, double t0, double t1,
+                  F&& piece) {
+    const Vec3& c = box.c;
+    const Vec3& h = box.h;
+    double cuts[10];
+    int n = 0;
+    for (int i = 0; i < 3; ++i) {
+        if (v[i] == 0.0) continue;
+        for (double plane : {c[i] - h[i], c[i], c[i] + h[i]}) {
+            const double t = (plane - m[i]) / v[i];
+            if (t > t0 && t < t1) cuts[n++] = t;
+        }
+    }
+    cuts[n++] = t1;
+    std::sort(cuts, cuts + n);
+    double lo = t0;
+    for (int k = 0; k < n; ++k) {
+        const double hi = cuts[k];
+        if (!(hi > lo)) continue;
+        const double mid = 0.5 * (lo + hi);
+        double alpha[3], beta[3];
+        bool out[3];
+        for (int i = 0; i < 3; ++i) {
+            const double sign = m[i] + mid * v[i] - c[i] < 0.0 ? -1.0 : 1.0;
+            alpha[i] = sign * (m[i] - c[i]) - h[i];
+            beta[i] = sign * v[i];
+            out[i] = alpha[i] + beta[i] * mid > 0.0;
+        }
+        piece(lo, hi, alpha, beta, out);
+        lo = hi;
+    }
+}
+
+/// Inside the box, where the distance is the largest of the terms, t where two of them cross
+/// within (lo, hi): with the piece's ends, where t -> phi or phi / t can be smallest.
+template <class F>
+void forTermCrossings(double lo, double hi, const double alpha[3], const double beta[3], F&& f) {
+    for (int i = 0; i < 3; ++i)
+        for (int j = i + 1; j < 3; ++j) {
+            if (beta[i] == beta[j]) continue;
+            const double t = (alpha[j] - alpha[i]) / (beta[i] - beta[j]);
+            if (t > lo && t < hi) f(t);
+        }
+}
+
+/// Signed distance between the segment from + t dir, t in [t0, t1], and a box's surface, in
+/// closed form piece by piece (forBoxPieces): outside, phi^2 is a quadratic in t, smallest at
+/// its vertex or a piece's end; inside, phi is smallest at a piece's end or where two terms
+/// cross. (A golden-section search of 60 distance evaluations until 2026-11-29.)
 Clearance boxClearance(const AnalyticBox& box, const Vec3& from, const Vec3& dir, double t0,
                        double t1) {
     const BoxFrame b(box);
-    constexpr double kInvPhi = 0.6180339887498949;
-    double a = t0, z = t1;
-    double m1 = z - kInvPhi * (z - a), m2 = a + kInvPhi * (z - a);
-    double f1 = boxDistance(b, from + m1 * dir, nullptr), f2 = boxDistance(b, from + m2 * dir, nullptr);
-    for (int i = 0; i < 60 && z - a > 1e-12 * (1.0 + t1); ++i) {
-        if (f1 < f2) {
-            z = m2;
-            m2 = m1;
-            f2 = f1;
-            m1 = z - kInvPhi * (z - a);
-            f1 = boxDistance(b, from + m1 * dir, nullptr);
-        } else {
-            a = m1;
-            m1 = m2;
-            f1 = f2;
-            m2 = a + kInvPhi * (z - a);
-            f2 = boxDistance(b, from + m2 * dir, nullptr);
+    double bestT = t0, best = boxDistance(b, from + t0 * dir, nullptr);
+    auto consider = [&](double t) {
+        const double d = boxDistance(b, from + t * dir, nullptr);
+        if (d < best) {
+            best = d;
+            bestT = t;
         }
-    }
+    };
+    consider(t1);
+    forBoxPieces(b, from, dir, t0, t1,
+                 [&](double lo, double hi, const double* alpha, const double* beta, const bool* out) {
+                     if (out[0] || out[1] || out[2]) {
+                         double qa = 0.0, qb = 0.0;
+                         for (int i = 0; i < 3; ++i) {
+                             if (!out[i]) continue;
+                             qa += beta[i] * beta[i];
+                             qb += 2.0 * alpha[i] * beta[i];
+                         }
+                         if (qa > 0.0) consider(std::clamp(-qb / (2.0 * qa), lo, hi));
+                     } else {
+                         consider(lo);
+                         forTermCrossings(lo, hi, alpha, beta, consider);
+                     }
+                 });
     Clearance c;
-    c.at = 0.5 * (a + z);
+    c.at = bestT;
     c.distance = boxDistance(b, from + c.at * dir, &c.normal);
     return c;
 }
@@ -551,14 +609,56 @@ double sphereRadius(const AnalyticSphere& sp, const Vec3& m, const Vec3& v) {
     return glm::length(s * a + v) - sp.radius * s;
 }
 
-/// The same for an axis-aligned box, whose signed distance is convex: t -> phi(M + t v) / t is
-/// then unimodal on (0, 1], and a golden-section search on it finds its minimum.
+/// The same for an axis-aligned box, in closed form. Along the line M + t v the box's signed
+/// distance is simple between the t where the line crosses a face's plane or a slab's middle
+/// plane. On a piece outside the box, phi^2 is a sum of squares of terms linear in t (one per
+/// axis the point is outside of), so (phi / t)^2 is a quadratic in s = 1/t with a closed-form
+/// minimum; on a piece inside, phi is the largest of such terms and phi / t, monotone along each,
+/// is smallest at the piece's ends or where two of them cross. Exact up to rounding, which a
+/// relative 1e-9 taken off a clear radius covers. (Until 2026-11-29, a golden-section search of
+/// about 40 distance evaluations: 9% of a render on random scene 1.)
+double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, double d0);
 double boxRadius(const AnalyticBox& box, const Vec3& m, const Vec3& v) {
     const BoxFrame frame(box);
     const double d0 = boxDistance(frame, m, nullptr);
     // Within the tracer's tolerance of the surface (segmentEpsilon) M is on it, not inside:
     // measured from there (a start a rounding error inside would make phi / t plunge as t -> 0).
     if (d0 < -segmentEpsilon(glm::length(v))) return -1e300;
+    if (d0 < 0.0) return boxRadiusSearch(box, m, v, d0);  // a rounding error inside: searched
+    auto value = [&](double t) { return boxDistance(frame, m + t * v, nullptr) / t; };
+    double best = value(1.0);
+    bool inside = false;
+    forBoxPieces(frame, m, v, 0.0, 1.0,
+                 [&](double lo, double hi, const double* alpha, const double* beta, const bool* out) {
+                     if (out[0] || out[1] || out[2]) {
+                         // (phi / t)^2 = A s^2 + B s + C over the axes outside, s in [1 / hi, 1 / lo].
+                         double a = 0.0, b = 0.0, cc = 0.0;
+                         for (int i = 0; i < 3; ++i) {
+                             if (!out[i]) continue;
+                             a += alpha[i] * alpha[i];
+                             b += 2.0 * alpha[i] * beta[i];
+                             cc += beta[i] * beta[i];
+                         }
+                         const double sLo = 1.0 / hi, sHi = lo > 0.0 ? 1.0 / lo : 1e300;
+                         const double sv = a > 0.0 ? std::clamp(-b / (2.0 * a), sLo, sHi) : sLo;
+                         best = std::min(best, std::sqrt(std::max(0.0, (a * sv + b) * sv + cc)));
+                     } else {
+                         inside = true;
+                         if (lo > 0.0) best = std::min(best, value(lo));
+                         forTermCrossings(lo, hi, alpha, beta,
+                                          [&](double t) { best = std::min(best, value(t)); });
+                     }
+                 });
+    // A segment that enters has its depth from points it reaches (true depths); a clear one's
+    // closed-form minimum loses a rounding margin.
+    if (inside || best <= 0.0) return std::min(best, 0.0);
+    return std::max(0.0, best * (1.0 - 1e-9) - 1e-12);
+}
+
+/// The golden-section search for a start a rounding error inside: t -> phi(M + t v) / t is
+/// unimodal on (0, 1] for a convex shape, measured from the start's depth.
+double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, double d0) {
+    const BoxFrame frame(box);
     const double shift = std::min(d0, 0.0);
     auto h = [&](double t) { return (boxDistance(frame, m + t * v, nullptr) - shift) / t; };
     // The search narrows the bracket [a, z] of the minimum until t -> phi / t can drop inside
