@@ -275,6 +275,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     }
     int level = 0;
     int coverageRays = 0, repasses = 0, remarks = 0;
+    bool unsettled = false;
     for (;;) {
         lat.remark = false;
         if (!lat.pass(level)) {
@@ -284,6 +285,9 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         }
         if (!mSettings.coverage) break;
         if (lat.remark && ++remarks <= kMaxRepasses) continue;
+        // Passes that never settled leave a contour whose vertices some samples contradict:
+        // nothing of it is proven, and the bound says so.
+        unsettled = unsettled || lat.remark;
         // Every ray the pass traced must agree with the contour it closed; one that does not
         // (a dichotomy sample of a neighbouring square, say) makes the pass run again like a
         // contradicting coverage ray.
@@ -319,6 +323,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         }
         if (!again) {
             if (mSettings.errorBound) lat.bound += lat.finalUncoveredFormFactor();
+            if (unsettled) lat.bound = std::max(lat.bound, lat.squareFormFactor(0, 0, lat.N));
             break;
         }
     }

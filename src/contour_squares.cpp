@@ -323,6 +323,21 @@ Vertex ContourIntegrator::Lattice::crossing(LatticePoint vis, LatticePoint hid, 
     LatticePoint fv = vis, fh = hid;
     Vertex v = crossingOnSegment(vis, hid, steps, fv, fh);
     if (onLine) {
+        // A side longer than its neighbour's stops its dichotomy on a bracket of several
+        // lattice units, inside which the neighbour's finer dichotomy may have traced samples:
+        // the vertex must agree with them (else knownCrossing() drops it on every pass and the
+        // passes never settle), so it is placed again inside the bracket they narrow.
+        const int len = std::max(std::abs(fh.a - fv.a), std::abs(fh.b - fv.b));
+        if (len > 1) {
+            const int da = (fh.a - fv.a) / len, db = (fh.b - fv.b) / len;
+            const LatticePoint from = fv;
+            auto at = [&](int j) { return LatticePoint{from.a + j * da, from.b + j * db}; };
+            int lo = 0, hi = len;
+            narrowByTraced(at, lo, hi);
+            if (lo != 0 || hi != len)
+                v = self.mSettings.tangentContour ? crossingNewton(at(lo), at(hi), 0, fv, fh)
+                                                  : crossingOnSegment(at(lo), at(hi), 0, fv, fh);
+        }
         const Vec3 pv = pointOf(fv), ph = pointOf(fh);
         const double f = glm::dot(v.c - pv, ph - pv) / glm::dot(ph - pv, ph - pv);
         const bool horizontal = fv.b == fh.b;
