@@ -1,0 +1,211 @@
+// Does every answer stay within its error bound on scenes nobody tuned? For each seeded random
+// scene (bench/random_scenes.h, the scenes of bench_random), the receiver points that the
+// camera's pixels see on a lattice of its image (every --stride-th pixel of a --size x --size
+// image, alternate rows shifted by half a stride; ground and obstacles alike) get default ACI
+// with its error bound and a Monte Carlo reference (mc-ratio, --samples rays: the closed form
+// times the cosine-weighted visible fraction, exact where nothing is hidden). Where the
+// difference exceeds the bound plus four of the reference's standard deviations, the reference
+// is redone with --confirm rays and the point is a violation if it still does; each violation is
+// printed with what reproduces it (`penumbra probe --error-bound` on the scene file at that
+// point and normal). A check, not a timing: never fails on a figure, prints what it found.
+//
+//   bench_bounds [--seeds N] [--first-seed S] [--size 200] [--stride 4] [--samples 4096]
+//                [--confirm 1048576] [--threads 2] [--out DIR]
+//
+// Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include "bench_common.h"
+#include "random_scenes.h"
+#include "penumbra/camera.h"
+#include "penumbra/contour_integrator.h"
+#include "penumbra/form_factor.h"
+#include "penumbra/monte_carlo.h"
+#include "penumbra/renderer.h"
+#include "penumbra/scene.h"
+#include "surface_normal.h"
+
+using namespace penumbra;
+
+namespace {
+
+struct Args {
+    int seeds = 10, firstSeed = 1, size = 200, stride = 4, samples = 4096, confirm = 1 << 20;
+    int threads = 2;
+    std::string out = "/tmp/penumbra_bounds";
+};
+
+// A receiver point seen through a pixel: the nearest receiver plane, or the obstacle that a
+// segment to it crosses first.
+std::optional<Receiver> seenAt(const Scene& scene, const Occluder& occ, Occluder::Query& q,
+                               const PinholeCamera& camera, int x, int y) {
+    const ViewRay ray = camera.pixelRay(x, y);
+    double best = std::numeric_limits<double>::infinity();
+    Receiver r;
+    for (const PlaneReceiver& plane : scene.receivers) {
+        const Vec3 n = glm::normalize(plane.normal);
+        const double d = glm::dot(ray.direction, n);
+        if (d == 0.0) continue;
+        const double t = glm::dot(plane.point - ray.origin, n) / d;
+        if (t > 0.0 && t < best) {
+            best = t;
+            r = {ray.at(t), d < 0.0 ? n : -n};
+        }
+    }
+    const Vec3 far = ray.at(std::isfinite(best) ? best : 1e3);
+    double tHit = 0.0;
+    if (q.occluded(ray.origin, far, &tHit)) {
+        const Vec3 p = ray.at(tHit);
+        return Receiver{p, surfaceNormal(occ.shape(size_t(q.lastBlocker())), p)};
+    }
+    if (!std::isfinite(best)) return std::nullopt;
+    return r;
+}
+
+struct PointResult {
+    bool seen = false, shadowed = false, violation = false;
+    Receiver r;
+    double aci = 0, bound = 0, ref = 0, sigma = 0, full = 0;
+    uint64_t rays = 0;
+};
+
+// The reference at r with `samples` rays and its standard deviation (at least that of one
+// ray in `samples` disagreeing).
+void reference(const Receiver& r, const RectLight& light, Occluder::Query& q, double offset,
+               int samples, PointResult& out) {
+    McSettings mc;
+    mc.samples = samples;
+    mc.rayOffset = offset;
+    out.ref = monteCarloRatio(r, light, q, mc).formFactor;
+    const double frac = std::clamp(out.ref / out.full, 0.0, 1.0);
+    out.sigma = out.full * std::sqrt(std::max(frac * (1.0 - frac), 1.0 / samples) / samples);
+}
+
+bool outside(const PointResult& p) {
+    return std::abs(p.aci - p.ref) > p.bound + 4.0 * p.sigma;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    try {
+        Args a;
+        bench::parseOptions("bench_bounds", argc, argv,
+                            {{"--seeds", &a.seeds},
+                             {"--first-seed", &a.firstSeed},
+                             {"--size", &a.size},
+                             {"--stride", &a.stride},
+                             {"--samples", &a.samples},
+                             {"--confirm", &a.confirm},
+                             {"--threads", &a.threads},
+                             {"--out", &a.out}});
+        if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
+            a.threads < 1)
+            bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
+                                             "and --threads must be positive");
+        std::filesystem::create_directories(a.out);
+        tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
+        std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "
+                    "confirm), pixels every %d of %d x %d, %d threads\n\n",
+                    a.samples, a.confirm, a.stride, a.size, a.size, a.threads);
+        std::printf("%-8s %7s %9s %10s %9s %12s %14s %8s\n", "scene", "points", "shadowed",
+                    "violations", "rays/pt", "max err/F0", "max err/bound", "seconds");
+        int totalPoints = 0, totalViolations = 0;
+        for (int i = 0; i < a.seeds; ++i) {
+            const int seed = a.firstSeed + i;
+            const auto start = std::chrono::steady_clock::now();
+            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed));
+            const std::string path = a.out + "/seed_" + std::to_string(seed) + ".json";
+            std::ofstream(path) << g.json;
+            const Scene scene = parseScene(g.json, path, a.out);
+            Camera cam = *scene.camera;
+            cam.width = cam.height = a.size;
+            const PinholeCamera camera(cam, scene.file);
+            const Occluder occ = scene.makeOccluder();
+            occ.prepareClearance();
+            const RectLight& light = scene.lights.at(0);
+
+            std::vector<std::pair<int, int>> pixels;
+            for (int y = 0; y < a.size; y += a.stride)
+                for (int x = (y / a.stride) % 2 * (a.stride / 2); x < a.size; x += a.stride)
+                    pixels.emplace_back(x, y);
+            std::vector<PointResult> results(pixels.size());
+            tbb::enumerable_thread_specific<Occluder::Query> queries([&] { return occ.makeQuery(); });
+            tbb::parallel_for(size_t(0), pixels.size(), [&](size_t k) {
+                Occluder::Query& q = queries.local();
+                PointResult& p = results[k];
+                const std::optional<Receiver> r =
+                    seenAt(scene, occ, q, camera, pixels[k].first, pixels[k].second);
+                if (!r) return;
+                p.r = *r;
+                p.full = unoccludedFormFactor(light, p.r);
+                if (!(p.full > 0.0)) return;
+                p.seen = true;
+                AciSettings s;
+                s.gradient = false;
+                s.rayOffset = receiverRayOffset(occ, p.r.point, 1e-9);
+                ContourIntegrator aci(s);
+                const Estimate e = aci.evaluate(p.r, light, q);
+                p.aci = e.formFactor;
+                p.bound = e.errorBound;
+                p.rays = e.counts.shadowRays();
+                reference(p.r, light, q, s.rayOffset, a.samples, p);
+                p.shadowed = p.ref < p.full * (1.0 - 1e-3);
+                if (outside(p)) {
+                    reference(p.r, light, q, s.rayOffset, a.confirm, p);
+                    p.violation = outside(p);
+                }
+            });
+            int points = 0, shadowed = 0, violations = 0;
+            uint64_t rays = 0;
+            double maxErr = 0.0, maxRatio = 0.0;
+            for (const PointResult& p : results) {
+                if (!p.seen) continue;
+                ++points;
+                shadowed += p.shadowed;
+                rays += p.rays;
+                // Only confirmed figures: a 4096-ray reference's noise would dominate.
+                if (p.violation) {
+                    ++violations;
+                    maxErr = std::max(maxErr, std::abs(p.aci - p.ref) / p.full);
+                    const double over = std::abs(p.aci - p.ref) - 4.0 * p.sigma;
+                    maxRatio = std::max(maxRatio, p.bound > 0.0 ? over / p.bound : HUGE_VAL);
+                }
+            }
+            const double seconds =
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            std::printf("seed %-3d %7d %9d %10d %9.1f %11.3f%% %14.2f %8.1f\n", seed, points,
+                        shadowed, violations, points ? double(rays) / points : 0.0, 100.0 * maxErr,
+                        maxRatio, seconds);
+            for (size_t k = 0; k < results.size(); ++k) {
+                const PointResult& p = results[k];
+                if (!p.violation) continue;
+                std::printf("  violation at pixel (%d, %d): aci %.6g, reference %.6g (sigma %.2g), "
+                            "bound %.3g, unoccluded %.4g; probe: %.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
+                            pixels[k].first, pixels[k].second, p.aci, p.ref, p.sigma, p.bound,
+                            p.full, p.r.point.x, p.r.point.y, p.r.point.z, p.r.normal.x,
+                            p.r.normal.y, p.r.normal.z);
+            }
+            std::fflush(stdout);
+            totalPoints += points;
+            totalViolations += violations;
+        }
+        std::printf("\n%d points, %d violations\n", totalPoints, totalViolations);
+        return 0;
+    } catch (...) {
+        return bench::reportException("bench_bounds");
+    }
+}
