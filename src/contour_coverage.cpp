@@ -326,58 +326,92 @@ bool ContourIntegrator::Lattice::forLeavesHolding(LatticePoint q, const F& f) co
 // prove. False when every uncovered point is within coverageGap x epsilon (epsilon: the
 // final dichotomy interval) of proven ground, so that no shadow or window holding a disc of
 // that radius can hide there, or when `giveUp` (uncoveredFormFactor() then tells what stays
-// uncovered). The scan of a pass's leaves is updated incrementally as rays are added.
+// uncovered, once finalUncoveredFormFactor() has dropped what later discs cover).
+//
+// The cells wait in a max-heap by key. A disc traced later only lowers a cell's key (its gap
+// is a minimum over discs) or covers the cell, so a stored key is never below the true one:
+// the top is brought up to date with the discs traced since it was last looked at, and it is
+// the farthest cell once its key, up to date, is still on top. Only the cells that come near
+// the top ever meet a new disc (every cell against every new disc cost a fifth of a render).
 bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool giveUp) {
     auto& cells = scratch.mUncovered;
+    auto& heap = scratch.mCoverageHeap;
+    const size_t discs = scratch.mTraced.size();
+    // Cells from `from` on were just made against every disc traced so far.
+    auto enqueue = [&](size_t from) {
+        for (size_t i = from; i < cells.size(); ++i) {
+            cells[i].seen = discs;
+            heap.emplace_back(cells[i].key, static_cast<uint32_t>(i));
+            std::push_heap(heap.begin(), heap.end());
+        }
+    };
+    auto pop = [&] {
+        std::pop_heap(heap.begin(), heap.end());
+        heap.pop_back();
+    };
+    // Replaces cell i by its quarters, each against every disc and contour strip near it.
+    auto quarter = [&](size_t i) {
+        const Uncovered u = cells[i];
+        cells[i].dead = true;
+        gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
+        const size_t from = cells.size();
+        const double h = 0.5 * u.size;
+        for (int q = 0; q < 4; ++q) uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h);
+        enqueue(from);
+    };
+    // Done: what stays, for the bound (stale cells are cut down against every disc there).
+    auto finish = [&] {
+        cells.erase(std::remove_if(cells.begin(), cells.end(), [](const Uncovered& u) { return u.dead; }),
+                    cells.end());
+        heap.clear();
+        return false;
+    };
     if (mScanned == 0) {
         // A new pass: scan the leaves.
         cells.clear();
+        heap.clear();
         for (const Leaf& leaf : scratch.mLeaves) {
             gatherNear(leaf.x0, leaf.y0, leaf.s);
             uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell);
         }
-        mScanned = scratch.mTraced.size();
-    } else {
-        // Only the discs traced since: drop the cells they cover, narrow the others' gaps.
-        for (size_t t = mScanned; t < scratch.mTraced.size(); ++t) {
-            const Disc& d = scratch.mTracedDiscs[t];
-            scratch.mDiscs.assign(1, d);
-            size_t kept = 0;
-            for (Uncovered& u : cells) {
+        enqueue(0);
+        mScanned = 1;
+    }
+    if (giveUp) return finish();
+    const double enough = self.mSettings.coverageGap * epsWorld;
+    while (!heap.empty()) {
+        const uint32_t i = heap.front().second;
+        if (cells[i].seen < discs) {
+            // Stale: the discs traced since drop it or narrow its gap.
+            pop();
+            Uncovered& u = cells[i];
+            for (size_t t = u.seen; t < discs && !u.dead; ++t) {
+                const Disc& d = scratch.mTracedDiscs[t];
                 // A disc too far to hold any of the cell only narrows its gap.
                 const double dist = glm::length(u.centre - d.c);
-                if (mayHold(d, dist, u.size * cellReach) &&
-                    cellInDisc(u.a0, u.b0, u.size, u.centre))
-                    continue;
+                if (mayHold(d, dist, u.size * cellReach)) {
+                    scratch.mDiscs.assign(1, d);
+                    if (cellInDisc(u.a0, u.b0, u.size, u.centre)) {
+                        u.dead = true;
+                        break;
+                    }
+                }
                 gapTo(u, d, dist);
-                if (!u.exhausted) u.key = coverageKey(u);
-                if (&cells[kept] != &u) cells[kept] = u;
-                ++kept;
             }
-            cells.resize(kept);
+            if (u.dead) continue;
+            u.seen = discs;
+            u.key = coverageKey(u);
+            heap.emplace_back(u.key, i);
+            std::push_heap(heap.begin(), heap.end());
+            continue;
         }
-        mScanned = scratch.mTraced.size();
-    }
-    const double enough = self.mSettings.coverageGap * epsWorld;
-    for (;;) {
-        // The first cell of the largest key (exhausted cells have -inf).
-        size_t far = cells.size();
-        double farKey = -std::numeric_limits<double>::infinity();
-        for (size_t i = 0; i < cells.size(); ++i)
-            if (cells[i].key > farKey) {
-                far = i;
-                farKey = cells[i].key;
-            }
-        if (giveUp || far == cells.size() || farKey < enough) return false;
-        const Uncovered u = cells[far];
+        if (heap.front().first < enough) break;
+        const Uncovered u = cells[i];
         if (u.gap < enough && u.size > kCoverageCell) {
             // Its centre is near proven ground, a farther part of it may not be: look at
-            // its quarters instead (with every disc and contour strip near it).
-            cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
-            gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
-            const double h = 0.5 * u.size;
-            for (int q = 0; q < 4; ++q)
-                uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h);
+            // its quarters instead.
+            pop();
+            quarter(i);
             continue;
         }
         const int ia = static_cast<int>(u.a0), ib = static_cast<int>(u.b0);
@@ -389,19 +423,17 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
                 return true;
             }
         }
+        pop();
         if (u.size <= kCoverageCell) {
             // Nothing finer to ask here (it still counts in uncoveredFormFactor()).
-            cells[far].exhausted = true;
-            cells[far].key = -std::numeric_limits<double>::infinity();
+            cells[i].exhausted = true;
+            cells[i].key = -std::numeric_limits<double>::infinity();
             continue;
         }
         // Every candidate traced and still uncovered: its quarters.
-        cells.erase(cells.begin() + static_cast<std::ptrdiff_t>(far));
-        gatherNear(ia, ib, static_cast<int>(u.size));
-        for (int q = 0; q < 4; ++q)
-            uncoveredCells(u.a0 + (q & 1) * 0.5 * u.size, u.b0 + (q >> 1) * 0.5 * u.size,
-                           0.5 * u.size, 0.5 * u.size);
+        quarter(i);
     }
+    return finish();
 }
 
 // Whether a traced coverage sample lies in the square (x0, y0, s), corners excluded, with

@@ -70,6 +70,8 @@ struct Uncovered {  // a cell of the light no disc proves yet
     Vec3 centre;
     double key = 0.0;  // coverage's priority (Lattice::coverageKey), -inf once exhausted
     bool exhausted = false;  // every lattice point coverage may ask in it is traced
+    bool dead = false;       // covered, or replaced by its quarters (nextCoverageSample)
+    size_t seen = 0;         // the traced discs its gap and key have taken in
 };
 
 constexpr float kVisible = -1.0f;
@@ -131,6 +133,9 @@ struct ContourIntegrator::Scratch {
     std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
     std::vector<Certificate> mCert;  // coverage: each sample's certificate
     std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
+    // Coverage's queue: (key, index into mUncovered), a max-heap whose keys may be stale, but
+    // never low (nextCoverageSample).
+    std::vector<std::pair<double, uint32_t>> mCoverageHeap;
     std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
     std::vector<Segment> mSegs;      // coverage: the last pass's contour segments
     std::vector<Segment> mNearSegs;  // coverage scratch: segments near one leaf
@@ -177,7 +182,7 @@ struct ContourIntegrator::Lattice {
     // light's circle. Points outside are hidden without a ray (kBelowHorizon).
     std::vector<LightEdge> cuts;
     bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
-    size_t mScanned = 0;  // coverage: traced rays already in scratch.mUncovered (0: scan anew)
+    size_t mScanned = 0;  // coverage: 0 until this pass's leaves are scanned for uncovered cells
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again
