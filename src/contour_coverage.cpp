@@ -366,7 +366,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         heap.clear();
         return false;
     };
-    if (mScanned == 0) {
+    if (!mScanned) {
         // A new pass: scan the leaves.
         cells.clear();
         heap.clear();
@@ -375,7 +375,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
             uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell);
         }
         enqueue(0);
-        mScanned = 1;
+        mScanned = true;
     }
     if (giveUp) return finish();
     const double enough = self.mSettings.coverageGap * epsWorld;

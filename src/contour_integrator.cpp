@@ -308,7 +308,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // contradicts the contour (a shadow or window the pass missed) makes the pass run again,
         // splitting the squares it lies in; every ray is reused.
         LatticePoint q;
-        lat.mScanned = 0;
+        lat.mScanned = false;
         while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
             ++coverageRays;
             lat.certifyNext = true;

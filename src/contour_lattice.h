@@ -182,7 +182,7 @@ struct ContourIntegrator::Lattice {
     // light's circle. Points outside are hidden without a ray (kBelowHorizon).
     std::vector<LightEdge> cuts;
     bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
-    size_t mScanned = 0;  // coverage: 0 until this pass's leaves are scanned for uncovered cells
+    bool mScanned = false;  // coverage: this pass's leaves are scanned for uncovered cells
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again
