@@ -786,19 +786,44 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     if (!inside) return 0.0;
     // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
     // the largest -hi / t over points inside, until it reaches `want`. Any inner point proves
-    // its own disc, so the points need not be dense: each step goes at least half as far again
-    // as the distance from the entry (a chord is crossed in a dozen points, not hundreds), and
+    // its own disc, so the points need not be dense. After a hit, the first point leaps to
+    // where the depth could first give all of `want` (want x t past the entry: the depth grows
+    // at most as fast as the distance from the surface); when that point is outside, the march
+    // goes back to a voxel past the entry. Each step then goes at least 1.5 times as far again
+    // as the distance from the entry (a chord is crossed in a few points, not hundreds), and
     // the march ends once the value has fallen to half its best (past the chord's deep part).
+    // When the leap's point stays the deepest, one more point halfway back to the entry: the
+    // leap may have overshot the deep part. (Steps of 0.5 times the distance and no leap took
+    // 8 points per blocked segment in bench_occluder, 4.7 with the steps alone.)
     double depth = 0.0;
     bool wasInside = false;
     const double entry = tHit >= 0.0 ? tHit : t;
+    bool leapt = false;     // the first point is the leap's
+    bool leapBest = false;  // the leap's point is inside and the deepest so far
+    double leapT = 0.0;
+    if (tHit >= 0.0) {
+        const double target = tHit + want * tHit / length;
+        if (target > t && target < 1.0) {
+            leapt = true;
+            leapT = t = target;
+            nearSurface = false;  // the leap lands deep, where the fine grid says nothing
+        }
+    }
     for (int it = 0; it < 200 && t <= 1.0; ++it) {
         const Vec3 p = m + t * v;
         const Range r = range(p, 0.0);
+        const bool atLeap = leapt && it == 0;
+        if (atLeap && !(r.hi < 0.0)) {
+            t = tHit + hf / length;  // past the chord (or not proven inside): from the entry
+            nearSurface = true;
+            continue;
+        }
         if (r.hi < 0.0) {
             const double d = -r.hi / std::max(t, 1e-12);
             if (d >= want) return -want;
             if (d < 0.5 * depth) break;
+            if (atLeap) leapBest = true;
+            else if (d > depth) leapBest = false;
             depth = std::max(depth, d);
             wasInside = true;
         } else if (wasInside && r.lo > 0.0) {
@@ -808,8 +833,13 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // is still inside unless the chord ends there.
         const double mag = std::min(std::abs(r.hi), std::abs(r.lo));
         const double step = std::max({std::isfinite(mag) && mag < 1e299 ? mag : hc, 0.5 * hf,
-                                      0.5 * (t - entry) * length});
+                                      1.5 * (t - entry) * length});
         t += step / length;
+    }
+    if (leapBest) {
+        const double tb = 0.5 * (entry + leapT);
+        const Range r = range(m + tb * v, 0.0);
+        if (r.hi < 0.0) depth = std::max(depth, std::min(want, -r.hi / tb));
     }
     return -depth;
 }
