@@ -130,7 +130,10 @@ TEST_CASE("analytic sphere: the error shrinks as steps and grid grow", "[aci]") 
     const double e47 = meanError(4, 7, nullptr);
     INFO("relative mean errors: 2/3 " << e23 << ", 2/5 " << e25 << ", 2/7 " << e27 << ", 4/5 "
                                       << e45 << ", 4/7 " << e47 << "; rays at 2/5 " << raysDefault);
-    CHECK(e25 < e23);
+    // Since the strip threshold with coverage is a sixteenth of the paper's, 3 steps refine to
+    // the default's accuracy on this line (measured 0.0409% at 2/3 and 0.0415% at 2/5): fewer
+    // steps must not be better beyond noise, more must be.
+    CHECK(e25 < 1.05 * e23);
     CHECK(e27 < e25);
     // At 4 x 4 squares both step counts sit at the floor of about 0.01% (measured 0.0092% and
     // 0.0093%): more steps must not make it worse beyond noise.
@@ -281,11 +284,14 @@ TEST_CASE("tangent mode: a box's corners from the tangent lines, in fewer rays",
              << "tangent " << double(raysT) / points << " rays, error " << errT / unocc
              << "; arcs " << double(raysP) / points << " rays, error " << errP / unocc);
         CHECK(points > 60);
-        // Measured on this line: analytic 43.9 rays at 0.14%, level set 55.6 at 0.20% (arcs:
-        // 76 rays at 0.37% and 0.39%). (20.0 and 17.3 rays while coverage trusted discs that
-        // exclude only the other obstacles next to a located contour; see test_coverage.cpp.)
+        // Measured on this line: analytic 63.6 rays at 0.070%, level set 62.7 at 0.17% (arcs:
+        // 76 rays at 0.37% and 0.39%). (43.9 rays at 0.14% and 55.6 at 0.20% with the strip
+        // threshold a quarter of the paper's instead of a sixteenth; 20.0 and 17.3 rays while
+        // coverage trusted discs that exclude only the other obstacles next to a located
+        // contour, see test_coverage.cpp.) Fewer rays than arcs at under half its error.
         CHECK(errT / unocc < 0.005);
-        CHECK(raysT < 0.8 * raysP);
+        CHECK(errT < 0.5 * errP);
+        CHECK(raysT < 0.9 * raysP);
     }
 }
 
