@@ -798,13 +798,11 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     double depth = 0.0;
     bool wasInside = false;
     const double entry = tHit >= 0.0 ? tHit : t;
-    bool leapt = false;     // the first point is the leap's
+    double leapT = 0.0;     // the leap's point (> 0 when the first point is the leap's)
     bool leapBest = false;  // the leap's point is inside and the deepest so far
-    double leapT = 0.0;
     if (tHit >= 0.0) {
         const double target = tHit + want * tHit / length;
         if (target > t && target < 1.0) {
-            leapt = true;
             leapT = t = target;
             nearSurface = false;  // the leap lands deep, where the fine grid says nothing
         }
@@ -812,7 +810,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     for (int it = 0; it < 200 && t <= 1.0; ++it) {
         const Vec3 p = m + t * v;
         const Range r = range(p, 0.0);
-        const bool atLeap = leapt && it == 0;
+        const bool atLeap = leapT > 0.0 && it == 0;
         if (atLeap && !(r.hi < 0.0)) {
             t = tHit + hf / length;  // past the chord (or not proven inside): from the entry
             nearSurface = true;
