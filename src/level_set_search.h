@@ -39,7 +39,7 @@ public:
     using ValueT = float;
 
     explicit CellSearch(const GridT& grid, float isoValue = 0.0f)
-        : mGrid(&grid), mAccessor(grid.getConstAccessor()) {
+        : mGrid(&grid), mMap(grid.transform().baseMap().get()), mAccessor(grid.getConstAccessor()) {
         if (grid.empty()) throw std::invalid_argument("CellSearch: empty grid");
         if (isoValue != 0.0f) throw std::invalid_argument("CellSearch: iso-value must be 0");
         const float voxel = static_cast<float>(grid.voxelSize()[0]);
@@ -47,7 +47,11 @@ public:
         grid.tree().root().evalActiveBoundingBox(mBox, /*visit voxels*/ false);
     }
     CellSearch(const CellSearch& o)
-        : mGrid(o.mGrid), mAccessor(o.mGrid->getConstAccessor()), mNear(o.mNear), mBox(o.mBox) {}
+        : mGrid(o.mGrid),
+          mMap(o.mMap),
+          mAccessor(o.mGrid->getConstAccessor()),
+          mNear(o.mNear),
+          mBox(o.mBox) {}
 
     float getIsoValue() const { return 0.0f; }
     bool setIndexRay(const RayT& ray) {
@@ -55,14 +59,14 @@ public:
         return mRay.clip(mBox);
     }
     bool setWorldRay(const RayT& ray) {
-        mRay = ray.worldToIndex(*mGrid);
+        mRay = ray.applyInverseMap(*mMap);
         return mRay.clip(mBox);
     }
     void getIndexPos(VecT& xyz) const { xyz = mRay(mTime); }
     void getWorldPos(VecT& xyz) const { xyz = mGrid->indexToWorld(mRay(mTime)); }
     RealT getIndexTime() const { return mTime; }
     RealT getWorldTime() const {
-        return mTime * mGrid->transform().baseMap()->applyJacobian(mRay.dir()).length();
+        return mTime * mMap->applyJacobian(mRay.dir()).length();
     }
 
 private:
@@ -221,6 +225,9 @@ private:
     double value(RealT t) { return sampleTrilinear(mAccessor, mRay(t)); }
 
     const GridT* mGrid;
+    // The grid's index-to-world map, held by the grid. Ray::worldToIndex(grid) would fetch it
+    // as a shared pointer for every ray: an atomic count that the threads' rays contend on.
+    const openvdb::math::MapBase* mMap;
     GridT::ConstAccessor mAccessor;
     float mNear = 0.0f;      // voxels whose value is within this of zero are tested
     openvdb::math::CoordBBox mBox;
