@@ -777,6 +777,12 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                 rho = 0.7 * r.lo / t;
                 if (rho < rhoMin) break;
             }
+            // The segments to the light points within rho of its end pass within rho t' of
+            // the axis at t' (balls, not discs across the axis: a light point may lie anywhere
+            // within rho), and the ball of radius lo around p holds that one while
+            // length (t' - t) + rho t' <= lo. (Taking them for discs, (length (t' - t))^2 +
+            // (rho t')^2 <= lo^2, steps twice as far and certified blocked points in
+            // tests/test_certificate.cpp.)
             const double next = (r.lo + length * t) / (length + rho);
             if (next >= 1.0) return rho;
             t = next;
