@@ -9,6 +9,7 @@
 //                [--gallery-size 200[,800] | --gallery-size 0] [--gallery-dir DIR]
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
+//                [--adjudicate-samples 1048576]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -16,7 +17,9 @@
 // reproduces it). --gallery-dir defaults to ./vdb_scenes, else the source tree's. --save-images
 // also writes there, per scene and size, the reference, default ACI and mc-solid-angle at ACI's
 // time (.exr), ACI's picture (.png) and its error map on the compared pixels (.png; black 0,
-// blue 2, red 4, yellow 6, white 8 or more units).
+// blue 2, red 4, yellow 6, white 8 or more units). --adjudicate-samples N (default 2^20; 0:
+// off) judges ACI's compared pixels over 6 units again, against two N-ray references of each
+// pixel alone (below).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -74,6 +77,12 @@
 //    the light than 4 strata (4 x the light's longer edge / sqrt(samples), 0.0625 x the edge at
 //    4096 rays; the distance from the point the benchmark's own viewing ray hits); "max*" leaves
 //    those out and "ref?" counts them among the ">6" pixels.
+//  - Per-pixel judgement: each of default ACI's compared pixels over 6 units is rendered again
+//    alone (a 1 x 1 camera at the same eye looking along the pixel's viewing ray, so the same
+//    shading point) with Method::Reference at --adjudicate-samples rays, twice with two seeds.
+//    The scene's line below the table header says how many stay over 6 units from the two's
+//    mean, the largest such difference, and in how many the two differ by more than 3 units
+//    (the per-pixel references themselves unsettled); the pixels still over are listed.
 //  - Silhouette pixels: the renderer exposes no object-id AOV, so the benchmark casts the viewing
 //    rays itself with the public API, the way the renderer does (PinholeCamera::pixelRay, the
 //    nearest receiver plane, then each obstacle's bounds clipped and Occluder::Query::occluded
@@ -137,6 +146,7 @@ struct Args {
     std::vector<std::string> gallery{"default", "table1"};  // scene stems in galleryDir
     bool saveImages = false;
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
+    int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
 };
 
 [[noreturn]] void usage(const std::string& message) {
@@ -144,7 +154,8 @@ struct Args {
     std::fprintf(stderr,
                  "usage: bench_random [--seeds N] [--first-seed S] [--sizes 200,800] "
                  "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
-                 "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]\n");
+                 "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images] "
+                 "[--adjudicate-samples N]\n");
     std::exit(2);
 }
 
@@ -205,6 +216,7 @@ Args parseArgs(int argc, char** argv) {
                 if (!stem.empty()) a.gallery.push_back(stem);
         }
         else if (s == "--save-images") a.saveImages = true;
+        else if (s == "--adjudicate-samples") a.adjudicateSamples = int(parseInt(s, next()));
         else if (s == "--help" || s == "-h") usage("seeded random scenes: ACI against Monte Carlo");
         else usage("unknown option " + s);
     }
@@ -212,6 +224,7 @@ Args parseArgs(int argc, char** argv) {
     if (a.threads < 1) usage("--threads must be >= 1");
     if (a.refSamples < 1) usage("--ref-samples must be >= 1");
     if (a.repeat < 1) usage("--repeat must be >= 1");
+    if (a.adjudicateSamples < 0) usage("--adjudicate-samples must be >= 0");
     if (a.refStride < 0 || (a.refStride > 0 && a.refStride % 2 == 0))
         usage("--ref-stride must be odd (1, 3, 5, ...): only then is the sampled set centred");
     if (a.galleryDir.empty()) {
@@ -391,6 +404,62 @@ Metrics measure(const Image& full, const Comparison& cmp) {
         }
     }
     return m;
+}
+
+/// ACI's compared pixels over 6 units, judged again against references of their own: for each,
+/// two renders of that one pixel (a 1 x 1 camera on the pixel's viewing ray) with
+/// `samples` reference rays and two seeds. A pixel stays "over" when ACI differs from their mean
+/// by more than 6 units; "unsettled" when the two differ from each other by more than 3.
+struct Adjudication {
+    size_t judged = 0, over = 0, unsettled = 0;
+    double worst = 0.0;  // ACI's largest difference from the per-pixel references
+    std::string overList;  // "(x, y) aci-vs-ref units; ..." for those still over
+};
+
+Adjudication adjudicate(const Scene& scene, const Camera& cam, const Image& aci,
+                        const Comparison& cmp, int samples, int threads) {
+    Adjudication out;
+    if (samples <= 0) return out;
+    const PinholeCamera pc(cam);
+    const Sampling& smp = cmp.sampling;
+    for (int j = 0; j < smp.count; ++j) {
+        for (int i = 0; i < smp.count; ++i) {
+            const int x = smp.offset + smp.stride * i, y = smp.offset + smp.stride * j;
+            double worst = 0.0;
+            for (int c = 0; c < 3; ++c)
+                worst = std::max(worst, 255.0 * std::abs(double(aci.at(x, y, c)) - cmp.ref->at(i, j, c)));
+            if (worst <= 6.0) continue;
+            ++out.judged;
+            const ViewRay ray = pc.pixelRay(x, y);
+            Scene one = scene;  // shares the level sets
+            one.camera->eye = ray.origin;
+            one.camera->lookAt = ray.origin + ray.direction;
+            one.camera->fovDeg = cam.fovDeg / cam.height;
+            one.camera->width = one.camera->height = 1;
+            RenderSettings rs = bench::squareSettings(Method::Reference, 1, threads);
+            rs.mc.samples = samples;
+            rs.mc.seed = 0xad1;
+            const Image a = render(one, rs).color;
+            rs.mc.seed = 0xad2;
+            const Image b = render(one, rs).color;
+            double off = 0.0, spread = 0.0;
+            for (int c = 0; c < 3; ++c) {
+                const double mean = 0.5 * (double(a.at(0, 0, c)) + b.at(0, 0, c));
+                off = std::max(off, 255.0 * std::abs(double(aci.at(x, y, c)) - mean));
+                spread = std::max(spread, 255.0 * std::abs(double(a.at(0, 0, c)) - b.at(0, 0, c)));
+            }
+            out.worst = std::max(out.worst, off);
+            out.unsettled += spread > 3.0;
+            if (off > 6.0) {
+                ++out.over;
+                char buf[96];
+                std::snprintf(buf, sizeof buf, "%s(%d, %d) %.1f (refs apart %.1f)",
+                              out.overList.empty() ? "" : "; ", x, y, off, spread);
+                out.overList += buf;
+            }
+        }
+    }
+    return out;
 }
 
 void printTableHeader() {
@@ -652,6 +721,16 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
         nearPixels, kNearStrata, disagreePixels,
         idMismatch,
         closedFormMax, aciSetup, triesText.c_str());
+    if (args.adjudicateSamples > 0) {
+        progress("aci's pixels over 6 units: per-pixel references");
+        const Adjudication adj =
+            adjudicate(scene, cam, aci.color, cmp, args.adjudicateSamples, args.threads);
+        std::printf(
+            "# aci's pixels over 6 units judged against two %d-ray references of their own: %zu "
+            "judged, %zu still over 6 (largest %.2f), %zu where those two differ by more than 3%s%s\n",
+            args.adjudicateSamples, adj.judged, adj.over, adj.worst, adj.unsettled,
+            adj.overList.empty() ? "" : ": ", adj.overList.c_str());
+    }
     const Metrics aciMetrics = measure(aci.color, cmp);
     auto makeRow = [&](const std::string& method, const RenderResult& r, int samples) {
         Row row;

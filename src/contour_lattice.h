@@ -77,6 +77,9 @@ struct Uncovered {  // a cell of the light no disc proves yet
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
+// With coverage: an evaluation whose coverage rays ran out with more than this share of the
+// light's area unproven restarts once one level deeper (contour_integrator.cpp).
+constexpr double kEscalateUnproven = 0.8;
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
 // Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
 // within half an interval of its every point and the stopping rule on centres (every uncovered
