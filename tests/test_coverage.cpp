@@ -65,6 +65,21 @@ bool holdsNoCorner(const ShadowDisc& d, int p, double margin) {
     return true;
 }
 
+/// A scene of tests/scenes/ with its occluder (far-field companions built) and a query on it.
+/// Not copyable: the query points at the occluder.
+struct SceneUnderTest {
+    explicit SceneUnderTest(const std::string& file)
+        : scene(loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/tests/scenes/" + file)),
+          occ(scene.makeOccluder()),
+          q((occ.prepareClearance(), occ.makeQuery())) {}
+    SceneUnderTest(const SceneUnderTest&) = delete;
+    SceneUnderTest& operator=(const SceneUnderTest&) = delete;
+
+    Scene scene;
+    Occluder occ;
+    Occluder::Query q;
+};
+
 // The default estimate at a receiver that may sit on an obstacle (its own ray offset), and a
 // Monte Carlo reference of `samples` rays with its standard deviation.
 struct AgainstMonteCarlo {
@@ -379,10 +394,10 @@ TEST_CASE("coverage: a thin shadow reaching past its located contour piece (rand
     // share, and the open contour came out at 85% of the unoccluded form factor too bright,
     // at 6 times the bound. Reference: Monte Carlo with 2^16 rays, allowed four of its standard
     // deviations besides the bound.
-    const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/tests/scenes/random_seed5.json");
-    const Occluder occ = scene.makeOccluder();
-    occ.prepareClearance();
-    Occluder::Query q = occ.makeQuery();
+    SceneUnderTest t("random_seed5.json");
+    const Scene& scene = t.scene;
+    const Occluder& occ = t.occ;
+    Occluder::Query& q = t.q;
     const RectLight& light = scene.lights.at(0);
     for (const Vec3 p : {Vec3(-0.634085, 2.267012, 0.0), Vec3(0.888946, 3.930314, 0.0)}) {
         const Receiver r{p, kUp};
@@ -405,10 +420,10 @@ TEST_CASE("coverage: the light through a torus' hole from 0.007 under it (random
     // restarts once one level deeper when that happens (kEscalateUnproven). Reference: Monte
     // Carlo with 2^16 rays; allowed 2% of the unoccluded form factor and four of its standard
     // deviations (the error before: 11% of it).
-    const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/tests/scenes/random_seed5.json");
-    const Occluder occ = scene.makeOccluder();
-    occ.prepareClearance();
-    Occluder::Query q = occ.makeQuery();
+    SceneUnderTest t("random_seed5.json");
+    const Scene& scene = t.scene;
+    const Occluder& occ = t.occ;
+    Occluder::Query& q = t.q;
     const Receiver r{Vec3(-0.296925111, -0.996897833, 0.0), kUp};
     const AgainstMonteCarlo m = againstMonteCarlo(occ, q, scene.lights.at(0), r);
     INFO("aci " << m.aci.formFactor << " bound " << m.aci.errorBound << ", reference " << m.ref
@@ -428,10 +443,10 @@ TEST_CASE("coverage: a vertex that a neighbour's finer samples contradict (rando
     // it and the next placed it again, 64 times, and the contour kept a gap: 28% of the form
     // factor too dark, at 2.7 times the bound. Reference: Monte Carlo with 2^20 rays, allowed
     // four of its standard deviations besides the bound.
-    const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/tests/scenes/random_seed6.json");
-    const Occluder occ = scene.makeOccluder();
-    occ.prepareClearance();
-    Occluder::Query q = occ.makeQuery();
+    SceneUnderTest t("random_seed6.json");
+    const Scene& scene = t.scene;
+    const Occluder& occ = t.occ;
+    Occluder::Query& q = t.q;
     const Receiver r{Vec3(-3.67137347, 9.35040074, 0.0), kUp};
     const AgainstMonteCarlo m = againstMonteCarlo(occ, q, scene.lights.at(0), r, 1 << 20);
     const Estimate& e = m.aci;
