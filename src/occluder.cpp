@@ -79,34 +79,163 @@ bool hitSphere(const AnalyticSphere& s, const Vec3& from, const Vec3& dir, doubl
 // ---------------------------------------------------------------------------------------------
 // Far-field distance
 
+namespace {
+
+/// How far the companion's values stray from the fine grid's, region by region. The companion
+/// is a distance to a coarser surface, and a fine surface point x, where the fine distance is
+/// 0, has a companion value of at most its error e(x) there. The companion changes no faster
+/// than the distance, so from p, x is at least vc(p) - e(x) away, and at least as far as the
+/// block of voxels holding x. The fine surface's distance from p is the smallest over its
+/// points: phi(p) >= min over blocks B of max(dist(p, B), vc(p) - e_B), e_B the largest error
+/// measured in B. Near the surface this is the error of the surface's part nearest p: the worst
+/// place of a shape (a bunny's thin ears, which the companion loses) no longer shrinks every
+/// distance around the rest of it. (Until 2026-12-01 the worst error over the whole grid.)
+///
+/// Blocks are laid out in the fine grid's index space (its transform may rotate); reaches and
+/// block edges are in fine voxels. Each block keeps, for each k up to kReach, the largest error
+/// within k blocks of it; blocks k away lie at least k - 1 block edges from any point of it.
+class CompanionError {
+public:
+    static constexpr int kReach = 12;
+
+    /// `worst` is the global bound; `block` the blocks' edge in fine voxels; `lo` (index space)
+    /// and `dims` the blocks' grid, `raw` the largest error measured in each.
+    CompanionError(double worst, int block, const openvdb::Vec3d& lo, const openvdb::Coord& dims,
+                   const std::vector<float>& raw)
+        : mWorst(worst), mBlock(block), mLo(lo), mDims(dims), mMax(raw.size() * (kReach + 1)) {
+        // Each reach is the previous one grown by a block along every axis (a box max filter).
+        std::vector<float> cur = raw;
+        for (int k = 0; k <= kReach; ++k) {
+            if (k > 0) {
+                for (int axis = 0; axis < 3; ++axis) {
+                    std::vector<float> next = cur;
+                    forEachBlock([&](const openvdb::Coord& c) {
+                        for (int d : {-1, 1}) {
+                            openvdb::Coord q = c;
+                            q[axis] += d;
+                            if (q[axis] >= 0 && q[axis] < dims[axis])
+                                next[index(c)] = std::max(next[index(c)], cur[index(q)]);
+                        }
+                    });
+                    cur = std::move(next);
+                }
+            }
+            for (size_t i = 0; i < cur.size(); ++i) mMax[i * (kReach + 1) + k] = cur[i];
+        }
+    }
+
+    double worst() const { return mWorst; }
+
+    /// A bound on the companion's error at the fine index-space point p, for a nearest
+    /// surface point within `reach` fine voxels: the largest error that near.
+    double at(const openvdb::Vec3d& p, double reach) const {
+        size_t i;
+        if (!(reach <= double(kReach * mBlock)) || !blockOf(p, i)) return mWorst;
+        const int k = int(std::ceil(reach / mBlock));
+        return double(mMax[i * (kReach + 1) + k]);
+    }
+
+    /// A lower bound on the fine surface's signed distance at p (fine index space), given the
+    /// companion's value vc there and a nearest surface point within `reach` fine voxels;
+    /// `voxel` converts fine voxels to world units.
+    double lower(const openvdb::Vec3d& p, double vc, double reach, double voxel) const {
+        size_t i;
+        if (!(reach <= double(kReach * mBlock)) || !blockOf(p, i)) return vc - mWorst;
+        const int k = int(std::ceil(reach / mBlock));
+        const float* m = &mMax[i * (kReach + 1)];
+        // Inside, the bound is the companion's value less the largest error within the reach.
+        if (!(vc > 0.0)) return vc - double(m[k]);
+        // Blocks up to one away may touch p; those r away lie (r - 1) edges off, less the
+        // voxel around a block over which its surface points' errors were measured.
+        double lo = vc - double(m[std::min(k, 1)]);
+        for (int r = 2; r <= k; ++r)
+            lo = std::min(lo, std::max(((r - 1) * mBlock - 1) * voxel, vc - double(m[r])));
+        return lo;
+    }
+
+private:
+    bool blockOf(const openvdb::Vec3d& p, size_t& i) const {
+        int c[3];
+        for (int a = 0; a < 3; ++a) {
+            const double f = std::floor((p[a] - mLo[a]) / mBlock);
+            if (!(f >= 0.0 && f < double(mDims[a]))) return false;
+            c[a] = int(f);
+        }
+        i = index(openvdb::Coord(c[0], c[1], c[2]));
+        return true;
+    }
+    size_t index(const openvdb::Coord& c) const {
+        return (size_t(c.z()) * size_t(mDims.y()) + size_t(c.y())) * size_t(mDims.x()) +
+               size_t(c.x());
+    }
+    template <class F>
+    void forEachBlock(F&& f) const {
+        for (int z = 0; z < mDims.z(); ++z)
+            for (int y = 0; y < mDims.y(); ++y)
+                for (int x = 0; x < mDims.x(); ++x) f(openvdb::Coord(x, y, z));
+    }
+
+    double mWorst;
+    int mBlock;
+    openvdb::Vec3d mLo;
+    openvdb::Coord mDims;
+    std::vector<float> mMax;  // per block, the largest error within k = 0..kReach blocks
+};
+
+}  // namespace
+
 struct Occluder::FarField {
     explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
     const openvdb::FloatGrid& get() const { return levelSet->farField(kFarVoxelFactor, kFarBand); }
 
     /// How far the companion's values may stray from the fine grid's near the surface,
     /// measured once at every active fine voxel (plus half a fine voxel for the points between
-    /// them): certificates shrink companion distances by it. A feature thinner than a coarse
-    /// voxel, which the companion loses, shows up here as a large error, and certificates near
-    /// the obstacle then prove less rather than something false.
-    double error() const {
+    /// them), globally and block by block (CompanionError): certificates shrink companion
+    /// distances by it. A feature thinner than a coarse voxel, which the companion loses, shows
+    /// up here as a large error, and certificates near it then prove less rather than
+    /// something false.
+    const CompanionError& error() const {
         std::call_once(errorOnce, [&] {
             const openvdb::FloatGrid& fine = levelSet->grid();
             const openvdb::FloatGrid& coarse = get();
+            const double hf = fine.voxelSize()[0];
+            // Blocks of 4 fine voxels (one companion voxel), coarser for grids so large that
+            // more than 64 of them would be needed along an axis.
+            const openvdb::CoordBBox active = fine.evalActiveVoxelBoundingBox();
+            const openvdb::Coord extent = active.empty() ? openvdb::Coord(1) : active.dim();
+            int blockVoxels = 4;
+            while (extent.x() / blockVoxels + 1 > 64 || extent.y() / blockVoxels + 1 > 64 ||
+                   extent.z() / blockVoxels + 1 > 64)
+                blockVoxels *= 2;
+            const openvdb::Coord dims(extent.x() / blockVoxels + 1, extent.y() / blockVoxels + 1,
+                                      extent.z() / blockVoxels + 1);
+            const openvdb::Coord origin = active.empty() ? openvdb::Coord(0) : active.min();
+            std::vector<float> raw(size_t(dims.x()) * dims.y() * dims.z(), 0.0f);
             auto acc = coarse.getConstAccessor();
             double worst = 0.0;
             for (auto it = fine.cbeginValueOn(); it; ++it) {
-                const openvdb::Vec3d w = fine.indexToWorld(it.getCoord());
+                const openvdb::Coord ijk = it.getCoord();
+                const openvdb::Vec3d w = fine.indexToWorld(ijk);
                 const double vc = sampleTrilinear(acc, coarse.worldToIndex(w));
-                worst = std::max(worst, std::abs(vc - double(*it)));
+                const double e = std::abs(vc - double(*it)) + 0.5 * hf;
+                worst = std::max(worst, e);
+                const openvdb::Coord b = (ijk - origin);
+                const size_t i = (size_t(b.z() / blockVoxels) * dims.y() + b.y() / blockVoxels) *
+                                     dims.x() + b.x() / blockVoxels;
+                raw[i] = std::max(raw[i], float(e));
             }
-            errorValue = worst + 0.5 * fine.voxelSize()[0];
+            // Blocks start half a voxel before their first voxel's centre; a block's value is
+            // rounded up to the float above it.
+            for (float& e : raw) e = e > 0.0f ? std::nextafter(e, 1e30f) : 0.0f;
+            errorValue = std::make_unique<CompanionError>(
+                worst, blockVoxels, origin.asVec3d() - openvdb::Vec3d(0.5), dims, raw);
         });
-        return errorValue;
+        return *errorValue;
     }
 
     LevelSetPtr levelSet;
     mutable std::once_flag errorOnce;
-    mutable double errorValue = 0.0;
+    mutable std::unique_ptr<CompanionError> errorValue;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -701,10 +830,11 @@ double boxSdf(const Box3& b, const Vec3& p) {
 /// (at least halving) when a ball is too small. A segment that goes inside is then sampled for
 /// its depth.
 static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
-                             double coarseError, const Box3& bounds, const Vec3& m, const Vec3& v,
-                             double want, bool blocked, double tHit, double tMiddle) {
+                             const CompanionError& coarseError, const Box3& bounds, const Vec3& m,
+                             const Vec3& v, double want, bool blocked, double tHit,
+                             double tMiddle) {
     const double length = glm::length(v);
-    const double hc = coarseError;
+    const double hc = coarseError.worst();
     const double bandC = 0.98 * double(coarse.background());
     const double hf = slot.grid->voxelSize()[0];
     const double bandF = 0.98 * double(slot.grid->background());
@@ -744,12 +874,18 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         const double vc = sample(coarse, *slot.farAccessor, p);
         if (vc >= bandC) return {std::max(dBox, bandC - hc), 1e300};
         if (vc <= -bandC) return {-1e300, -(bandC - hc)};
-        if (std::abs(vc) > bandF + 2.0 * hc) return {std::max(dBox, vc - hc), vc + hc};
+        // The error of the part of the surface nearest p, which lies within |vc| + hc of it.
+        const openvdb::Vec3d ip = slot.grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
+        const double reach = (std::abs(vc) + hc) / hf + 1.0;
+        const double e = coarseError.at(ip, reach);
+        const double lo = coarseError.lower(ip, vc, reach, hf);
+        // The fine grid can only help where these bounds come near its band.
+        if (lo > bandF || vc < -(bandF + 2.0 * e)) return {std::max(dBox, lo), vc + e};
         if (std::isnan(vf)) vf = sample(*slot.grid, slot.accessor, p);
         // Beyond the fine band the surface is at least the band away (inactive values are the
         // band's width, with the sign of the side).
-        if (vf >= bandF) return {std::max({dBox, vc - hc, bandF}), vc + hc};
-        if (vf <= -bandF) return {vc - hc, std::min(vc + hc, -bandF)};
+        if (vf >= bandF) return {std::max({dBox, lo, bandF}), vc + e};
+        if (vf <= -bandF) return {vc - e, std::min(vc + e, -bandF)};
         nearSurface = true;
         return fineRange(vf);
     };
