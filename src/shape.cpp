@@ -690,7 +690,9 @@ FloatGrid::Ptr combine(const FloatGrid& a, const FloatGrid& b, CsgOp op) {
             const Vec3 nx = sa * unitGradient(accA, ijk), ny = sb * unitGradient(accB, ijk);
             if (nx == Vec3(0.0) || ny == Vec3(0.0)) continue;
             const double d = unionInsideDistance(sa * va, sb * vb, nx, ny);
-            if (d < std::fabs(c)) continue;  // |c| is a lower bound; keep it if larger
+            // |c| is a lower bound; keep it if larger, and where the seam's line is undefined
+            // (parallel normals, as on two coaxial cylinders' walls: d is infinite).
+            if (!(d >= std::fabs(c)) || !std::isfinite(d)) continue;
             it.setValue(float(op == CsgOp::Union ? -d : d));
         }
     });

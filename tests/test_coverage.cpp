@@ -432,6 +432,29 @@ TEST_CASE("coverage: the light through a torus' hole from 0.007 under it (random
     CHECK(std::abs(m.aci.formFactor - m.ref) <= 0.02 * m.full + 4.0 * m.sigma);
 }
 
+TEST_CASE("no tangent lines from surface a few voxels' magnification off: the bunny's back",
+          "[aci][coverage]") {
+    // Pixel (391, 249) of vdb_scenes/bunny.json at 800 x 800: a point on the bunny's back, part
+    // of the light hidden by its own head close by. Rays grazing that near surface, where one
+    // voxel spans 4-16 lattice units on the light, gave tangent lines that put the contour off:
+    // F 0.04684 against 0.04936 (5% low, 7 units in the picture, within its bound of 0.007;
+    // the paper's and arcs modes, and the default with tangents off, were right). Such rays
+    // give no tangent since kMagnifiedVoxel went from 16 to 4. Reference: Monte Carlo with
+    // 2^16 rays; allowed 1% of the unoccluded form factor and four of its standard deviations
+    // (the error before: 4.7% of it).
+    const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/bunny.json");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const Receiver r{Vec3(-0.0446189, 0.028310916, 0.992047638),
+                     glm::normalize(Vec3(0.377605427, -0.644861672, 0.664505505))};
+    const AgainstMonteCarlo m = againstMonteCarlo(occ, q, scene.lights.at(0), r);
+    INFO("aci " << m.aci.formFactor << " bound " << m.aci.errorBound << ", reference " << m.ref
+                << " (sigma " << m.sigma << "), unoccluded " << m.full);
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound + 4.0 * m.sigma);
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= 0.01 * m.full + 4.0 * m.sigma);
+}
+
 TEST_CASE("coverage: a vertex that a neighbour's finer samples contradict (random scene 6)",
           "[aci][coverage]") {
     // tests/scenes/random_seed6.json is bench_random's scene for seed 6 (bench/bench_random.cpp);

@@ -106,18 +106,22 @@ struct GalleryCase {
 // certificates took the far-field companion's error of the part of the surface nearest each
 // point instead of its worst over the whole grid (occluder.cpp, CompanionError: larger discs, so
 // other coverage rays; the default's and fog's rows and the paper's, arcs and Monte Carlo rows
-// unchanged).
+// unchanged). Every default-mode row the same day when a level set's ray whose closest approach
+// is so near its start that a voxel spans more than 4 lattice units (16 before) stopped giving
+// tangent lines (contour_lattice.h, kMagnifiedVoxel: the bunny's back in its head's shadow was
+// 5% low), csg's also because a CSG seam repair no longer writes +inf where the two surfaces'
+// normals are parallel (shape.cpp, combine; the paper's, arcs and Monte Carlo rows unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "f6d7e13d8189223f"},
+    {"default", "", "8c8e19035ffc57a6"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "80fa4bf79b59557d"},
+    {"table1", "", "d850662c04367a96"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "e708cac58175762f"},
-    {"vdb_tool", "", "c350683efa82319a"},
-    {"bunny", "", "784b528e59a3eee7"},
-    {"fog", "", "b02d0f84dbca7900"},
+    {"csg", "", "3b35d2d8e8d3a1a3"},
+    {"vdb_tool", "", "c873714f77a0842c"},
+    {"bunny", "", "badf2ddf407edc3a"},
+    {"fog", "", "409ee9537da88e4e"},
 };
 
 }  // namespace
