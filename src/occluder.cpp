@@ -812,13 +812,6 @@ double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, dou
     return best;
 }
 
-/// Signed distance from p to an axis-aligned box (outside positive), no gradient.
-double boxSdf(const Box3& b, const Vec3& p) {
-    AnalyticBox x;
-    x.lo = b.lo;
-    x.hi = b.hi;
-    return boxDistance(BoxFrame(x), p, nullptr);
-}
 
 }  // namespace
 
@@ -843,12 +836,25 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         slot.farAccessor =
             std::make_unique<openvdb::FloatGrid::ConstAccessor>(coarse.getConstAccessor());
     }
-    auto sample = [](const openvdb::FloatGrid& g, auto& acc, const Vec3& p) {
-        return double(sampleTrilinear(
-            acc, g.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z))));
+    // Points of the segment m + t v in world space and in both grids' index spaces (their
+    // transforms are linear: each is affine in t, computed once per segment).
+    auto toIndex = [](const openvdb::FloatGrid& g, const Vec3& p) {
+        return g.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
     };
-    // Bounds on the fine surface's signed distance at p: lo <= phi <= hi. `need` is what the
-    // caller would like lo to reach; the companion is not sampled when the box proves it.
+    const openvdb::Vec3d f0 = toIndex(*slot.grid, m), fv = toIndex(*slot.grid, m + v) - f0;
+    const openvdb::Vec3d c0 = toIndex(coarse, m), cv = toIndex(coarse, m + v) - c0;
+    auto fineAt = [&](double t) { return double(sampleTrilinear(slot.accessor, f0 + t * fv)); };
+    auto coarseAt = [&](double t) {
+        return double(sampleTrilinear(*slot.farAccessor, c0 + t * cv));
+    };
+    const BoxFrame boundsFrame = [&] {
+        AnalyticBox x;
+        x.lo = bounds.lo;
+        x.hi = bounds.hi;
+        return BoxFrame(x);
+    }();
+    // Bounds on the fine surface's signed distance at m + t v: lo <= phi <= hi. `need` is what
+    // the caller would like lo to reach; the companion is not sampled when the box proves it.
     struct Range {
         double lo, hi;
     };
@@ -861,27 +867,27 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     // Whether the last point's fine value lay inside the fine band: the next point, close by,
     // reads the fine grid first and skips the box and the companion when it is still there.
     bool nearSurface = false;
-    auto range = [&](const Vec3& p, double need) -> Range {
+    auto range = [&](double t, double need) -> Range {
         double vf = std::numeric_limits<double>::quiet_NaN();
         if (nearSurface) {
-            vf = sample(*slot.grid, slot.accessor, p);
+            vf = fineAt(t);
             if (std::abs(vf) < bandF) return fineRange(vf);
             nearSurface = false;
         }
-        const double dBox = boxSdf(bounds, p);
+        const double dBox = boxDistance(boundsFrame, m + t * v, nullptr);
         // Far from the bounds the box says as much as the companion could (the band ends there).
         if (dBox >= std::min(need, bandC) && dBox > 0.0) return {dBox, 1e300};
-        const double vc = sample(coarse, *slot.farAccessor, p);
+        const double vc = coarseAt(t);
         if (vc >= bandC) return {std::max(dBox, bandC - hc), 1e300};
         if (vc <= -bandC) return {-1e300, -(bandC - hc)};
         // The error of the part of the surface nearest p, which lies within |vc| + hc of it.
-        const openvdb::Vec3d ip = slot.grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
+        const openvdb::Vec3d ip = f0 + t * fv;
         const double reach = (std::abs(vc) + hc) / hf + 1.0;
         const double e = coarseError.at(ip, reach);
         const double lo = coarseError.lower(ip, vc, reach, hf);
         // The fine grid can only help where these bounds come near its band.
         if (lo > bandF || vc < -(bandF + 2.0 * e)) return {std::max(dBox, lo), vc + e};
-        if (std::isnan(vf)) vf = sample(*slot.grid, slot.accessor, p);
+        if (std::isnan(vf)) vf = fineAt(t);
         // Beyond the fine band the surface is at least the band away (inactive values are the
         // band's width, with the sign of the side).
         if (vf >= bandF) return {std::max({dBox, lo, bandF}), vc + e};
@@ -904,24 +910,63 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // more often and random scene 1 kept 14 pixels over 6 units off, against none.)
         const double rhoMin = want / 64.0;
         double rho = want;
+        auto need = [&](double tt) { return 1.25 * rho * tt + 1e-12; };
+        // The cone narrowed for a point's bound lo at tt (too close for this cone to step on by
+        // at least a fifth of the ball); false when it would fall under rhoMin.
+        auto narrowed = [&](double lo, double tt, double& out) {
+            out = lo < 1.25 * rho * tt ? 0.7 * lo / tt : rho;
+            return out >= rhoMin;
+        };
+        // The segments to the light points within rho of its end pass within rho t' of the
+        // axis at t' (balls, not discs across the axis: a light point may lie anywhere within
+        // rho), and the ball of radius lo around the point at tt holds that one while
+        // length |t' - tt| + rho t' <= lo: forward up to (lo + length tt) / (length + rho),
+        // back down to (length tt - lo) / (length - rho). (Taking them for discs, (length
+        // (t' - t))^2 + (rho t')^2 <= lo^2, steps twice as far and certified blocked points in
+        // tests/test_certificate.cpp.) [0, t) is proven; a narrower cone keeps what is proven.
+        Range r = range(0.0, need(0.0));
+        double prevT = -1.0, prevLo = 0.0;
+        // A point sampled ahead whose ball did not reach back to what was proven: kept, and
+        // jumped to once the march's balls reach its own.
+        double aheadT = -1.0;
+        Range aheadR{0.0, 0.0};
         for (int it = 0; it < 400; ++it) {
-            const Vec3 p = m + t * v;
-            const Range r = range(p, 1.25 * rho * t + 1e-12);
-            if (r.lo <= 0.0) break;
-            if (r.lo < 1.25 * rho * t) {
-                // Too close for this cone to step on by at least a fifth of the ball: narrow it.
-                rho = 0.7 * r.lo / t;
-                if (rho < rhoMin) break;
+            if (r.lo <= 0.0 || !narrowed(r.lo, t, rho)) break;
+            const double fwd = (r.lo + length * t) / (length + rho);
+            if (fwd >= 1.0) return rho;
+            // How far back a ball reaches (none when the cone is as wide as the segment is long).
+            auto backOf = [&](double tt, double lo) {
+                return length > rho ? (length * tt - lo) / (length - rho) : 1e300;
+            };
+            if (aheadT > fwd && backOf(aheadT, aheadR.lo) <= fwd) {
+                t = aheadT;
+                r = aheadR;
+                aheadT = -1.0;
+                continue;
             }
-            // The segments to the light points within rho of its end pass within rho t' of
-            // the axis at t' (balls, not discs across the axis: a light point may lie anywhere
-            // within rho), and the ball of radius lo around p holds that one while
-            // length (t' - t) + rho t' <= lo. (Taking them for discs, (length (t' - t))^2 +
-            // (rho t')^2 <= lo^2, steps twice as far and certified blocked points in
-            // tests/test_certificate.cpp.)
-            const double next = (r.lo + length * t) / (length + rho);
-            if (next >= 1.0) return rho;
-            t = next;
+            // Look ahead: a point as far past fwd as this ball reaches forward, whose own ball
+            // closes the gap back to fwd unless the distance falls on the way. Not while the
+            // distance falls fast (towards a surface the look-ahead fails).
+            const bool falling =
+                prevT >= 0.0 && prevLo - r.lo > 0.5 * (t - prevT) * length;
+            prevT = t;
+            prevLo = r.lo;
+            const double ahead = 2.0 * fwd - t;
+            if (!falling && aheadT <= fwd && ahead < 1.0) {
+                const Range ra = range(ahead, need(ahead));
+                double rhoA;
+                if (ra.lo > 0.0 && narrowed(ra.lo, ahead, rhoA)) {
+                    if (backOf(ahead, ra.lo) <= fwd) {
+                        t = ahead;
+                        r = ra;
+                        continue;
+                    }
+                    aheadT = ahead;
+                    aheadR = ra;
+                }
+            }
+            t = fwd;
+            r = range(t, need(t));
         }
         inside = blocked;
     }
@@ -955,8 +1000,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         }
     }
     for (int it = 0; it < 200 && t <= 1.0; ++it) {
-        const Vec3 p = m + t * v;
-        const Range r = range(p, 0.0);
+        const Range r = range(t, 0.0);
         const bool atLeap = leapT > 0.0 && it == 0;
         if (atLeap && !(r.hi < 0.0)) {
             t = tHit + hf / length;  // past the chord (or not proven inside): from the entry
@@ -983,7 +1027,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     }
     if (leapBest) {
         const double tb = 0.5 * (entry + leapT);
-        const Range r = range(m + tb * v, 0.0);
+        const Range r = range(tb, 0.0);
         if (r.hi < 0.0) depth = std::max(depth, std::min(want, -r.hi / tb));
     }
     return -depth;
