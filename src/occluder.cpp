@@ -126,31 +126,27 @@ public:
 
     double worst() const { return mWorst; }
 
-    /// A bound on the companion's error at the fine index-space point p, for a nearest
-    /// surface point within `reach` fine voxels: the largest error that near.
-    double at(const openvdb::Vec3d& p, double reach) const {
+    /// At the fine index-space point p, where the companion's value is vc and the nearest
+    /// surface point lies within `reach` fine voxels (`voxel` converts them to world units):
+    /// `error`, the largest companion error that near, and `lower`, a lower bound on the fine
+    /// surface's signed distance.
+    struct Local {
+        double error, lower;
+    };
+    Local at(const openvdb::Vec3d& p, double vc, double reach, double voxel) const {
         size_t i;
-        if (!(reach <= double(kReach * mBlock)) || !blockOf(p, i)) return mWorst;
-        const int k = int(std::ceil(reach / mBlock));
-        return double(mMax[i * (kReach + 1) + k]);
-    }
-
-    /// A lower bound on the fine surface's signed distance at p (fine index space), given the
-    /// companion's value vc there and a nearest surface point within `reach` fine voxels;
-    /// `voxel` converts fine voxels to world units.
-    double lower(const openvdb::Vec3d& p, double vc, double reach, double voxel) const {
-        size_t i;
-        if (!(reach <= double(kReach * mBlock)) || !blockOf(p, i)) return vc - mWorst;
+        if (!(reach <= double(kReach * mBlock)) || !blockOf(p, i)) return {mWorst, vc - mWorst};
         const int k = int(std::ceil(reach / mBlock));
         const float* m = &mMax[i * (kReach + 1)];
+        const double error = double(m[k]);
         // Inside, the bound is the companion's value less the largest error within the reach.
-        if (!(vc > 0.0)) return vc - double(m[k]);
+        if (!(vc > 0.0)) return {error, vc - error};
         // Blocks up to one away may touch p; those r away lie (r - 1) edges off, less the
         // voxel around a block over which its surface points' errors were measured.
         double lo = vc - double(m[std::min(k, 1)]);
         for (int r = 2; r <= k; ++r)
             lo = std::min(lo, std::max(((r - 1) * mBlock - 1) * voxel, vc - double(m[r])));
-        return lo;
+        return {error, lo};
     }
 
 private:
@@ -883,8 +879,8 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // The error of the part of the surface nearest p, which lies within |vc| + hc of it.
         const openvdb::Vec3d ip = f0 + t * fv;
         const double reach = (std::abs(vc) + hc) / hf + 1.0;
-        const double e = coarseError.at(ip, reach);
-        const double lo = coarseError.lower(ip, vc, reach, hf);
+        const CompanionError::Local local = coarseError.at(ip, vc, reach, hf);
+        const double e = local.error, lo = local.lower;
         // The fine grid can only help where these bounds come near its band.
         if (lo > bandF || vc < -(bandF + 2.0 * e)) return {std::max(dBox, lo), vc + e};
         if (std::isnan(vf)) vf = fineAt(t);
@@ -930,14 +926,14 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // jumped to once the march's balls reach its own.
         double aheadT = -1.0;
         Range aheadR{0.0, 0.0};
+        // How far back a ball reaches (none when the cone is as wide as the segment is long).
+        auto backOf = [&](double tt, double lo) {
+            return length > rho ? (length * tt - lo) / (length - rho) : 1e300;
+        };
         for (int it = 0; it < 400; ++it) {
             if (r.lo <= 0.0 || !narrowed(r.lo, t, rho)) break;
             const double fwd = (r.lo + length * t) / (length + rho);
             if (fwd >= 1.0) return rho;
-            // How far back a ball reaches (none when the cone is as wide as the segment is long).
-            auto backOf = [&](double tt, double lo) {
-                return length > rho ? (length * tt - lo) / (length - rho) : 1e300;
-            };
             if (aheadT > fwd && backOf(aheadT, aheadR.lo) <= fwd) {
                 t = aheadT;
                 r = aheadR;
