@@ -5,6 +5,9 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/RayIntersector.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cassert>
@@ -13,6 +16,7 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "cell_distance.h"
 #include "level_set_impl.h"
 #include "level_set_search.h"
 
@@ -180,6 +184,13 @@ private:
 
 }  // namespace
 
+/// A level set's cell tables (cell_distance.h): one-voxel cells a few voxels around its leaves,
+/// and cells of kCoarseBlock voxels reaching as far as its companion's band.
+struct CellTables {
+    static constexpr int kCoarseBlock = 4;
+    CellDistance fine, coarse;
+};
+
 struct Occluder::FarField {
     explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
     const openvdb::FloatGrid& get() const { return levelSet->farField(kFarVoxelFactor, kFarBand); }
@@ -229,9 +240,82 @@ struct Occluder::FarField {
         return *errorValue;
     }
 
+    /// The fine grid's cell tables, or null for a grid too large for them (more than
+    /// kMaxCells cells around its leaves) or one that is not a level set.
+    const CellTables* cells() const {
+        // Isolated: the build runs parallel loops, and a thread waiting in them must not take
+        // up outer work that could call this again (and wait on the flag it holds).
+        std::call_once(cellsOnce, [&] {
+            tbb::this_task_arena::isolate([&] { cellsValue = buildCells(levelSet->grid()); });
+        });
+        return cellsValue.get();
+    }
+
     LevelSetPtr levelSet;
-    mutable std::once_flag errorOnce;
+    mutable std::once_flag errorOnce, cellsOnce;
     mutable std::unique_ptr<CompanionError> errorValue;
+    mutable std::unique_ptr<CellTables> cellsValue;
+
+private:
+    // 24 million cells: 48 MB of table (a grid of about 290 voxels along each axis).
+    static constexpr size_t kMaxCells = size_t(24) << 20;
+
+    /// The table spans the cells around every leaf and every tile inside the surface, a few
+    /// cells beyond: outside it all eight corners of a cell are the background or an outside
+    /// tile, so it is clear, as CellDistance assumes.
+    static std::unique_ptr<CellTables> buildCells(const openvdb::FloatGrid& fine) {
+        const openvdb::FloatTree& tree = fine.tree();
+        if (!(tree.background() > 0.0f)) return nullptr;
+        openvdb::CoordBBox box;
+        if (!tree.evalLeafBoundingBox(box) || box.empty()) return nullptr;
+        // Tiles only (the iterators stop above the leaves).
+        auto off = tree.cbeginValueOff();
+        off.setMaxDepth(openvdb::FloatTree::ValueOffCIter::LEAF_DEPTH - 1);
+        for (; off; ++off)
+            if (!(*off > 0.0f)) box.expand(off.getBoundingBox());
+        auto on = tree.cbeginValueOn();  // active tiles (none in a level set)
+        on.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+        for (; on; ++on) box.expand(on.getBoundingBox());
+        constexpr int kMargin = 4;
+        box.expand(kMargin);
+        const openvdb::Coord lo = box.min(), ext = box.dim();  // cells: one per voxel of `box`
+        const int dims[3] = {ext.x(), ext.y(), ext.z()};
+        if (size_t(dims[0]) * size_t(dims[1]) * size_t(dims[2]) > kMaxCells) return nullptr;
+        // The sign of every corner (voxels lo .. lo + dims), then each cell's state.
+        const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
+        std::vector<int8_t> sign(size_t(vd[0]) * vd[1] * vd[2]);
+        tbb::parallel_for(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
+            auto acc = fine.getConstAccessor();
+            for (int z = r.begin(); z != r.end(); ++z)
+                for (int y = 0; y < vd[1]; ++y)
+                    for (int x = 0; x < vd[0]; ++x) {
+                        const float v = acc.getValue(lo + openvdb::Coord(x, y, z));
+                        sign[(size_t(z) * vd[1] + y) * vd[0] + x] = v > 0.0f ? 1 : v < 0.0f ? -1 : 0;
+                    }
+        });
+        std::vector<CellDistance::State> states(size_t(dims[0]) * dims[1] * dims[2]);
+        tbb::parallel_for(0, dims[2], [&](int z) {
+            for (int y = 0; y < dims[1]; ++y)
+                for (int x = 0; x < dims[0]; ++x) {
+                    bool allPos = true, allNeg = true;
+                    for (int k = 0; k < 8; ++k) {
+                        const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
+                                               vd[0] + x + (k & 1)];
+                        allPos = allPos && s > 0;
+                        allNeg = allNeg && s < 0;
+                    }
+                    states[(size_t(z) * dims[1] + y) * dims[0] + x] =
+                        allPos ? CellDistance::kClear
+                               : allNeg ? CellDistance::kInside : CellDistance::kSurface;
+                }
+        });
+        const int origin[3] = {lo.x(), lo.y(), lo.z()};
+        // The coarse cells reach as far as the companion's band.
+        const int margin = int(std::ceil(kFarBand * kFarVoxelFactor / CellTables::kCoarseBlock));
+        return std::make_unique<CellTables>(CellTables{
+            CellDistance(origin, dims, states),
+            CellDistance::coarsened(origin, dims, states, CellTables::kCoarseBlock, margin)});
+    }
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -289,7 +373,10 @@ Occluder::Query Occluder::makeQuery() const { return Query(*this); }
 
 void Occluder::prepareClearance() const {
     for (const auto& far : mFar)
-        if (far) far->error();  // builds the companion too
+        if (far) {
+            far->error();  // builds the companion too
+            far->cells();
+        }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -819,7 +906,8 @@ double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, dou
 /// (at least halving) when a ball is too small. A segment that goes inside is then sampled for
 /// its depth.
 static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coarse,
-                             const CompanionError& coarseError, const Box3& bounds, const Vec3& m,
+                             const CompanionError& coarseError, const CellTables* tables,
+                             const Box3& bounds, const Vec3& m,
                              const Vec3& v, double want, bool blocked, double tHit,
                              double tMiddle) {
     const double length = glm::length(v);
@@ -863,8 +951,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     // Whether the last point's fine value lay inside the fine band: the next point, close by,
     // reads the fine grid first and skips the box and the companion when it is still there.
     bool nearSurface = false;
-    auto range = [&](double t, double need) -> Range {
-        double vf = std::numeric_limits<double>::quiet_NaN();
+    auto companionRange = [&](double t, double need, double vf) -> Range {
         if (nearSurface) {
             vf = fineAt(t);
             if (std::abs(vf) < bandF) return fineRange(vf);
@@ -890,6 +977,51 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         if (vf <= -bandF) return {vc - e, std::min(vc + e, -bandF)};
         nearSurface = true;
         return fineRange(vf);
+    };
+    auto range = [&](double t, double need) -> Range {
+        double vf = std::numeric_limits<double>::quiet_NaN();
+        const openvdb::Vec3d ic = f0 + t * fv;
+        // What the coarse table proves clear around the point (the companion's bounds below
+        // never go under it).
+        double floorLo = 0.0, ceilHi = 1e300;
+        if (tables) {
+            // The cell tables: a ball of |cell| voxels around the point holds only clear (or
+            // only inside) cells. The coarse one first (small enough to stay in cache), then
+            // the one-voxel one; where that is less than the caller needs and the point may
+            // lie in the fine band, the fine value may prove more.
+            double cell;
+            if (tables->coarse.at(ic[0], ic[1], ic[2], cell)) {
+                if (cell > 0.0) {
+                    floorLo = cell * hf;
+                    if (floorLo >= need) return {floorLo, 1e300};
+                }
+                if (cell < 0.0) ceilHi = cell * hf;  // the coarse table reaches deeper inside
+            }
+            if (tables->fine.at(ic[0], ic[1], ic[2], cell)) {
+                const double d = cell < 0.0 ? std::min(cell * hf, ceilHi) : cell * hf;
+                if (cell > 0.0 && (d >= need || d >= bandF)) return {d, 1e300};
+                if (cell > 0.0) floorLo = std::max(floorLo, d);
+                if (cell < 0.0) ceilHi = d;
+                if (cell < 0.0 && -d >= bandF) {
+                    // Inside, the companion's value (its error is about a voxel) often proves
+                    // deeper than the cells (up to their diagonal); blocked segments take few
+                    // points, so both are read.
+                } else {
+                    vf = fineAt(t);
+                    if (std::abs(vf) < bandF) {
+                        Range r = fineRange(vf);
+                        return {std::max(r.lo, floorLo), std::min(r.hi, ceilHi)};
+                    }
+                    // Clear beyond the fine band: the band's width (the companion, a voxel or
+                    // so closer to the truth, costs more than it saves here).
+                    if (cell > 0.0 && vf >= bandF) return {std::max(floorLo, bandF), 1e300};
+                }
+                // Beyond the fine band (or a surface cell whose values say so: a level set
+                // whose band is not what its values say): the companion may prove more.
+            }
+        }
+        Range r = companionRange(t, need, vf);
+        return {std::max(r.lo, floorLo), std::min(r.hi, ceilHi)};
     };
 
     // A blocked segment whose first hit lies in these bounds: its depth from there.
@@ -1195,7 +1327,7 @@ struct LevelSetKind {
                 tMiddle = 0.5 * (tA + tB);
             }
         }
-        return levelSetRadius(*slot, far.get(), far.error(), bounds, m, v, want, blocked,
+        return levelSetRadius(*slot, far.get(), far.error(), far.cells(), bounds, m, v, want, blocked,
                               tHitFraction, tMiddle);
     }
 };

@@ -114,16 +114,19 @@ struct GalleryCase {
 // Table 1's default row the same day when the clear cone march began to look ahead (a point
 // whose ball reaches back to what is proven lets the march skip the point between) and to read
 // the grids at index-space points computed once per segment (other discs; the rest unchanged).
+// The default rows of table1 and bunny on 2026-12-01 (later session) when a level set's
+// certificates began to read tables of proven cell-to-cell distances (cell_distance.h) before
+// the far-field companion (other discs, so other coverage rays; the rest unchanged).
 const GalleryCase kCases[] = {
     {"default", "", "8c8e19035ffc57a6"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "57e1595f71fb00ad"},
+    {"table1", "", "0bd5e040e08cb8f4"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
     {"csg", "", "3b35d2d8e8d3a1a3"},
     {"vdb_tool", "", "c873714f77a0842c"},
-    {"bunny", "", "badf2ddf407edc3a"},
+    {"bunny", "", "6dc6c84791cc20b4"},
     {"fog", "", "409ee9537da88e4e"},
 };
 
