@@ -57,6 +57,18 @@ public:
         return true;
     }
 
+    /// The distance (in voxels) from the index-space point p to the table's box, 0 inside it.
+    double distanceOutside(double px, double py, double pz) const {
+        const double p[3] = {px, py, pz};
+        double s = 0.0;
+        for (int a = 0; a < 3; ++a) {
+            const double lo = mOrigin[a], hi = mOrigin[a] + mDims[a] / mInvBlock;
+            const double d = p[a] < lo ? lo - p[a] : p[a] > hi ? p[a] - hi : 0.0;
+            s += d * d;
+        }
+        return std::sqrt(s);
+    }
+
     /// Bytes held (the table: one per cell).
     size_t bytes() const { return mQuarters.size(); }
 
