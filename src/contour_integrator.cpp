@@ -34,13 +34,18 @@ Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
     out.origin = origin;
     double tHit = 0.0;
     Clearance c;
-    const bool hidden = query.occluded(origin, target, &tHit, measure ? &c : nullptr);
+    const bool certified = settings.coverage && want > 0.0;
+    // With a certificate and no clearance wanted, both in one pass (the certificate's tracing
+    // spares the intersector what it proves clear).
+    const bool hidden = certified && !measure
+                            ? query.occludedCertified(origin, target, want, &tHit, out.cert)
+                            : query.occluded(origin, target, &tHit, measure ? &c : nullptr);
     out.blocker = hidden ? query.lastBlocker() : -1;
     recordClearance(c, glm::length(target - origin), out.clear, out.geometry);
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0))
                         : kVisible;
-    if (settings.coverage && want > 0.0) query.certify(origin, target, hidden, tHit, want, out.cert);
+    if (certified && measure) query.certify(origin, target, hidden, tHit, want, out.cert);
     return out;
 }
 

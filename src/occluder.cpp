@@ -921,7 +921,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                              const CompanionError& coarseError, const CellTables* tables,
                              const Box3& bounds, const Vec3& m,
                              const Vec3& v, double want, bool blocked, double tHit,
-                             double tMiddle) {
+                             double tMiddle, const double* resume = nullptr) {
     const double length = glm::length(v);
     const double hc = coarseError.worst();
     const double bandC = 0.98 * double(coarse.background());
@@ -1050,6 +1050,11 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // more often and random scene 1 kept 14 pixels over 6 units off, against none.)
         const double rhoMin = want / 64.0;
         double rho = want;
+        // A cone of radius resume[1] proven up to fraction resume[0] by the caller.
+        if (resume) {
+            t = resume[0];
+            rho = std::min(want, resume[1]);
+        }
         auto need = [&](double tt) { return 1.25 * rho * tt + 1e-12; };
         // The cone narrowed for a point's bound lo at tt (too close for this cone to step on by
         // at least a fifth of the ball); false when it would fall under rhoMin.
@@ -1064,7 +1069,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // back down to (length tt - lo) / (length - rho). (Taking them for discs, (length
         // (t' - t))^2 + (rho t')^2 <= lo^2, steps twice as far and certified blocked points in
         // tests/test_certificate.cpp.) [0, t) is proven; a narrower cone keeps what is proven.
-        Range r = range(0.0, need(0.0));
+        Range r = range(t, need(t));
         double prevT = -1.0, prevLo = 0.0;
         // A point sampled ahead whose ball did not reach back to what was proven: kept, and
         // jumped to once the march's balls reach its own.
@@ -1251,6 +1256,12 @@ struct AnalyticKind {
     double radius(const Vec3& m, const Vec3& v, double, bool, double) const {
         return analyticRadius(shape, m, v);
     }
+    bool hitCertified(const Vec3& from, const Vec3& v, const Vec3& dir, const Vec3& invDir,
+                      const Box3& bounds, double, double tMin, double tMax, double, double& t,
+                      double& r) const {
+        r = analyticRadius(shape, from, v);
+        return hit(from, dir, invDir, bounds, tMin, tMax, t);
+    }
 };
 
 struct LevelSetKind {
@@ -1278,39 +1289,88 @@ struct LevelSetKind {
         }
         return slot ? levelSetClearance(*slot, far.get(), from, dir, t0, t1) : Clearance{};
     }
-    bool hit(const Vec3& from, const Vec3& dir, const Vec3& invDir, const Box3&, double tMin,
-             double tMax, double& t) const {
-        double t0 = tMin, t1 = tMax;
-        if (!slot || !bounds.clipRay(from, invDir, t0, t1)) return false;
-        if (t0 == tMin) {
-            // The segment starts inside the bounds: the marcher only finds sign changes, so a
-            // start inside the surface must be caught here.
-            const openvdb::Vec3d startIS =
-                slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
-            if (sampleTrilinear(slot->accessor, startIS) < 0.0f) {
-                t = 0.0;
-                return true;
+    /// Sphere tracing along from + t dir (dir a unit vector) from t0 on the cell tables, which
+    /// must exist: returns the first t where the clear ball they prove is under kNear voxels,
+    /// or a t >= t1 when there is none before t1. With `rho`, also the radius of the cone the
+    /// balls prove (Certificate; the segment ending at t1, whose start is `from`).
+    ///
+    /// The cone: the ball of radius D_i around the point at fraction s_i holds the cone's
+    /// cross-section at s (a ball of radius rho s) while L |s - s_i| + rho s <= D_i. The steps
+    /// are D_i, so each interval [s_i, s_i+1] is held by its two end balls; the smallest of
+    /// max(ball i, ball i+1) / s over it is at an end or where the two meet,
+    /// s* = s_i + (2 D_i - D_i+1) / 2L, where it is D_i+1 / 2. The last ball must hold the cross-section
+    /// at the segment's end.
+    static constexpr double kNear = 1.5;
+    /// What skipClear() proves of the cone: its radius `rho` so far, and the last ball (at
+    /// fraction sLast, radius dLast; sLast < 0 before the first).
+    struct Cone {
+        double rho = 0.0, sLast = -1.0, dLast = 0.0;
+    };
+    double skipClear(const Vec3& from, const Vec3& dir, double t0, double t1, Cone* rho) const {
+        const CellTables& tables = *far.cells();
+        const double hf = levelSet.voxelSize();
+        const openvdb::Vec3d p0 = slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
+        const openvdb::Vec3d pd =
+            slot->grid->worldToIndex(openvdb::Vec3d(from.x + dir.x, from.y + dir.y, from.z + dir.z)) -
+            p0;
+        const double length = t1;
+        double tc = t0, r = 1e300, sPrev = -1.0, dPrev = 0.0;
+        for (int k = 0; k < kMaxSkips; ++k) {
+            const double d = tables.clearVoxels(p0 + tc * pd) * hf;
+            if (d < kNear * hf) break;
+            if (rho) {
+                const double sc = tc / length;
+                if (sPrev > 0.0) r = std::min(r, std::max(dPrev, d - dPrev) / sPrev);
+                if (sPrev >= 0.0) {
+                    const double meet = sPrev + (2.0 * dPrev - d) / (2.0 * length);
+                    if (meet > sPrev && meet < sc) r = std::min(r, 0.5 * d / meet);
+                    r = std::min(r, d / sc);
+                }
+                sPrev = sc;
+                dPrev = d;
+            }
+            tc += d;
+            if (tc >= t1) {
+                if (rho) {
+                    r = std::min(r, dPrev - length * (1.0 - sPrev));
+                    if (sPrev > 0.0) r = std::min(r, dPrev / sPrev);
+                }
+                break;
             }
         }
-        if (const CellTables* tables = far.cells()) {
-            // Sphere tracing on the cell tables first: a ball they prove clear is crossed in one
-            // step, and the intersector starts only where the segment comes within kNear voxels
-            // of a cell that may hold the surface (half a voxel before), or not at all when it
-            // never does. The answer is the intersector's: the tables prove the trilinear field
-            // positive over what is skipped, where the intersector finds nothing.
-            constexpr double kNear = 1.5;
-            const double hf = levelSet.voxelSize();
-            const openvdb::Vec3d p0 = slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
-            const openvdb::Vec3d pd =
-                slot->grid->worldToIndex(openvdb::Vec3d(from.x + dir.x, from.y + dir.y, from.z + dir.z)) - p0;
-            double tc = t0;
-            for (int k = 0;; ++k) {
-                const double d = tables->clearVoxels(p0 + tc * pd);
-                if (d < kNear || k == kMaxSkips) break;
-                tc += d * hf;
-                if (tc >= t1) return false;
+        if (rho) *rho = Cone{std::max(0.0, r * (1.0 - 1e-9)), sPrev, dPrev};
+        return tc;
+    }
+
+    /// `start`: where to begin looking when the segment before it is known to be clear.
+    bool hit(const Vec3& from, const Vec3& dir, const Vec3& invDir, const Box3&, double tMin,
+             double tMax, double& t, double start = -1.0) const {
+        double t0 = tMin, t1 = tMax;
+        if (!slot || !bounds.clipRay(from, invDir, t0, t1)) return false;
+        if (start > t0) {
+            t0 = start;  // the caller proved the segment clear up to here: not inside
+            if (!(t0 < t1)) return false;
+        } else {
+            if (t0 == tMin) {
+                // The segment starts inside the bounds: the marcher only finds sign changes, so
+                // a start inside the surface must be caught here.
+                const openvdb::Vec3d startIS =
+                    slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
+                if (sampleTrilinear(slot->accessor, startIS) < 0.0f) {
+                    t = 0.0;
+                    return true;
+                }
             }
-            t0 = std::max(t0, tc - 0.5 * hf);
+            if (far.cells()) {
+                // Sphere tracing on the cell tables first: a ball they prove clear is crossed
+                // in one step, and the intersector starts only where the segment comes near a
+                // cell that may hold the surface (half a voxel before), or not at all when it
+                // never does. The answer is the intersector's: the tables prove the trilinear
+                // field positive over what is skipped, where the intersector finds nothing.
+                const double tc = skipClear(from, dir, t0, t1, nullptr);
+                if (tc >= t1) return false;
+                t0 = std::max(t0, tc - 0.5 * levelSet.voxelSize());
+            }
         }
         const VdbRay ray(openvdb::Vec3d(from.x, from.y, from.z), openvdb::Vec3d(dir.x, dir.y, dir.z),
                          t0, t1);
@@ -1325,7 +1385,10 @@ struct LevelSetKind {
         if (t < 0.0) t = 0.0;
         return true;
     }
-    double radius(const Vec3& m, const Vec3& v, double want, bool blocked, double tHitFraction) const {
+    /// `solidOnly`: the closed-form radii of the solid's box and sphere only (0 when they
+    /// prove nothing).
+    double radius(const Vec3& m, const Vec3& v, double want, bool blocked, double tHitFraction,
+                  bool solidOnly = false, const double* resume = nullptr) const {
         if (!slot) return want;
         // Every point the tracer can hit lies in the solid's box and in its sphere
         // (LevelSet::solidBoundsWS): a segment clear of either is clear of the level set, with
@@ -1346,6 +1409,7 @@ struct LevelSetKind {
             }
             if (solidR > 0.0) return std::min(solidR, want);
         }
+        if (solidOnly) return 0.0;
         // A blocked segment's depth march leaps no further than the middle of its chord
         // through the solid's box and sphere.
         double tMiddle = 1.0;
@@ -1361,7 +1425,45 @@ struct LevelSetKind {
             }
         }
         return levelSetRadius(*slot, far.get(), far.error(), far.cells(), bounds, m, v, want, blocked,
-                              tHitFraction, tMiddle);
+                              tHitFraction, tMiddle, resume);
+    }
+    /// The answer and the signed radius together (Query::occludedCertified): the solid's
+    /// closed-form radii first; then sphere tracing on the cell tables from the segment's
+    /// start, which proves a clear segment's cone on the way when it gets through; where it
+    /// stops near the surface, the intersector from there, and after a hit the depth march,
+    /// without one the cone march.
+    bool hitCertified(const Vec3& from, const Vec3& v, const Vec3& dir, const Vec3& invDir,
+                      const Box3&, double length, double tMin, double tMax, double want,
+                      double& t, double& r) const {
+        r = want;
+        if (!slot) return false;
+        double start = -1.0;
+        Cone cone;
+        if (far.cells()) {
+            const double tc = skipClear(from, dir, tMin, length, &cone);
+            if (tc >= length) {
+                // Clear; the solid's closed-form radii may prove a wider cone.
+                double rho = cone.rho;
+                if (rho < want) rho = std::max(rho, radius(from, v, want, false, -1.0, true));
+                r = std::min(rho, want);
+                return false;
+            }
+            start = std::max(tMin, tc - 0.5 * levelSet.voxelSize());
+        }
+        if (hit(from, dir, invDir, bounds, tMin, tMax, t, start)) {
+            r = radius(from, v, want, true, t / length);
+            return true;
+        }
+        // Clear, passing near the surface: the cone march goes on from the last ball, whose
+        // cone of the radius proven so far reaches (dLast + L sLast) / (L + rho).
+        const double rho = std::min(want, cone.rho);
+        if (cone.sLast > 0.0 && rho >= want / 64.0) {
+            const double resume[2] = {(cone.dLast + length * cone.sLast) / (length + rho), rho};
+            r = std::max(0.0, radius(from, v, want, false, -1.0, false, resume));
+        } else {
+            r = std::max(0.0, radius(from, v, want, false, -1.0));
+        }
+        return false;
     }
 };
 
@@ -1491,6 +1593,83 @@ bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clea
         clearance->obstacle = clearanceObstacle;
     }
     return hit;
+}
+
+bool Occluder::Query::occludedCertified(const Vec3& from, const Vec3& to, double want,
+                                        double* tHit, Certificate& out) {
+    const Vec3 v = to - from;
+    const double length = glm::length(v);
+    const double eps = segmentEpsilon(length);
+    if (!(want > 0.0) || !(length > 2.0 * eps)) {
+        double t = -1.0;
+        const bool blocked = occluded(from, to, &t);
+        if (blocked && tHit) *tHit = t;
+        certify(from, to, blocked, t, want, out);
+        return blocked;
+    }
+    ++mRays;
+    mLastBlocker = -1;
+    out = Certificate{};
+    const Vec3 dir = v / length;
+    const Vec3 invDir = 1.0 / dir;
+    // Per obstacle, as certify() combines them: the signed radius (> 0 clear, < 0 inside),
+    // capped at +-want; each obstacle that blocks gives its own hit and the depth after it.
+    double clearMin = want, clearSecond = want;
+    int clearArg = -1;
+    double deepMax = 0.0, deepSecond = 0.0;
+    int deepArg = -1;
+    double best = std::numeric_limits<double>::infinity();
+    const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mCandidates ? (*mCandidates)[k] : k;
+        const Box3& bounds = mOccluder->bounds(i);
+        if (bounds.empty()) continue;
+        AnalyticSphere around;
+        around.center = 0.5 * (bounds.lo + bounds.hi);
+        around.radius = 0.5 * glm::length(bounds.hi - bounds.lo);
+        double r = want;
+        if (sphereRadius(around, from, v) < want) {
+            double t = 0.0;
+            const bool found = visitKind(i, [&](const auto& kind) {
+                return kind.hitCertified(from, v, dir, invDir, bounds, length, eps, length - eps,
+                                         want, t, r);
+            });
+            if (found && t < best) {
+                best = t;
+                mLastBlocker = static_cast<int>(i);
+            }
+            r = std::clamp(r, -want, want);
+        }
+        if (r >= 0.0) {
+            if (r < clearMin) {
+                clearSecond = clearMin;
+                clearMin = r;
+                clearArg = static_cast<int>(i);
+            } else {
+                clearSecond = std::min(clearSecond, r);
+            }
+        } else if (-r > deepMax) {
+            deepSecond = deepMax;
+            deepMax = -r;
+            deepArg = static_cast<int>(i);
+        } else {
+            deepSecond = std::max(deepSecond, -r);
+        }
+    }
+    const bool blocked = mLastBlocker >= 0;
+    if (blocked && tHit) *tHit = best;
+    if (blocked) {
+        if (deepArg >= 0) {
+            out.radius = deepMax;
+            out.obstacle = deepArg;
+            out.radiusOthers = deepSecond > 0.0 ? 0.0 : clearMin;
+        }
+    } else if (deepArg < 0) {
+        out.radius = clearMin;
+        out.obstacle = clearArg;
+        out.radiusOthers = clearSecond;
+    }
+    return blocked;
 }
 
 void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double tHit,

@@ -196,6 +196,15 @@ public:
     void certify(const Vec3& from, const Vec3& to, bool blocked, double tHit, double want,
                  Certificate& out);
 
+    /// occluded() (with the hit distance) and certify() in one, for callers that certify every
+    /// ray: the same answer, and a certificate of the same kind. Against a level set, sphere
+    /// tracing on its cell tables from the segment's start proves a clear segment's cone on
+    /// the way; the intersector looks for a hit only from where that tracing stopped near the
+    /// surface. The hit distance may differ from occluded()'s by a small part of a voxel (the
+    /// intersector's samples start elsewhere). One shadow ray.
+    bool occludedCertified(const Vec3& from, const Vec3& to, double want, double* tHit,
+                           Certificate& out);
+
     /// Transmittance of the segment through the media, exp(-sum of extinction x integral of
     /// density): 1 when it crosses none (then no ray is counted), else one ray. Opaque obstacles
     /// are not looked at.
