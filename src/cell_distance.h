@@ -1,7 +1,7 @@
 /// @file cell_distance.h
-/// Internal: a dense table of proven distances between the cells of a level set's voxel grid,
-/// what a certificate's cone march reads in one lookup instead of a companion grid's eight
-/// values and its error (occluder.cpp).
+/// Internal: a dense table of proven distances between the cells of a level set's voxel grid
+/// (occluder.cpp). Shadow rays sphere-trace it before OpenVDB's intersector, and certificates
+/// read it in one lookup where a far-field companion takes eight values and its error.
 ///
 /// Space: the level set's index space. With cells one voxel wide, cell (i, j, k) is the trilinear
 /// cell whose lowest corner is voxel origin + (i, j, k): the unit cube [origin + ijk, origin +
@@ -84,6 +84,26 @@ private:
     int mBricks[3];                // bricks along each axis
     double mInvBlock, mUnit;       // 1 / block; voxels per stored unit (block / 4)
     std::vector<int8_t> mQuarters;  // signed distance in quarters of a cell, bricked
+};
+
+/// A level set's cell tables: one-voxel cells a few voxels around its leaves, and cells of
+/// kCoarseBlock voxels reaching as far as its far-field companion's band (LevelSet::cellTables).
+struct CellTables {
+    static constexpr int kCoarseBlock = 4;
+    CellDistance fine, coarse;
+
+    /// How far (in voxels) every cell around the index-space point p is proven clear: the
+    /// coarse table when it proves kFar voxels, else the one-voxel one; beyond the one-voxel
+    /// table, whose box holds every cell that is not clear, the distance to its box. <= 0 when
+    /// p's cell is not clear.
+    double clearVoxels(double px, double py, double pz) const {
+        constexpr double kFar = 8.0;
+        double c = 0.0, f;
+        if (coarse.at(px, py, pz, c) && c >= kFar) return c;
+        if (fine.at(px, py, pz, f)) return f > c ? f : c;
+        const double out = fine.distanceOutside(px, py, pz);
+        return out > c ? out : c;
+    }
 };
 
 /// The squared Euclidean distance transform on a dense 3D grid (x fastest): each value becomes

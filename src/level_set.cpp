@@ -7,6 +7,8 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <unistd.h>
@@ -25,6 +27,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "cell_distance.h"
 #include "level_set_impl.h"
 #include "penumbra/error.h"
 
@@ -79,6 +82,81 @@ void LevelSet::adoptFarField(openvdb::FloatGrid::ConstPtr grid) const {
 }
 
 bool hasFarField(const LevelSet& ls) { return ls.farFieldIfBuilt() != nullptr; }
+
+namespace {
+
+// 24 million cells: 24 MB of one-voxel table (a grid of about 290 voxels along each axis).
+constexpr size_t kMaxCells = size_t(24) << 20;
+
+/// The tables span the cells around every leaf and every tile inside the surface, a few cells
+/// beyond: outside them all eight corners of a cell are the background or an outside tile, so
+/// it is clear, as CellDistance assumes. Null for a grid that needs more than kMaxCells cells or
+/// is not a level set (background not positive).
+std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
+    const openvdb::FloatTree& tree = fine.tree();
+    if (!(tree.background() > 0.0f)) return nullptr;
+    openvdb::CoordBBox box;
+    if (!tree.evalLeafBoundingBox(box) || box.empty()) return nullptr;
+    // Tiles only (the iterators stop above the leaves).
+    auto off = tree.cbeginValueOff();
+    off.setMaxDepth(openvdb::FloatTree::ValueOffCIter::LEAF_DEPTH - 1);
+    for (; off; ++off)
+        if (!(*off > 0.0f)) box.expand(off.getBoundingBox());
+    auto on = tree.cbeginValueOn();  // active tiles (none in a level set)
+    on.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; on; ++on) box.expand(on.getBoundingBox());
+    constexpr int kMargin = 4;
+    box.expand(kMargin);
+    const openvdb::Coord lo = box.min(), ext = box.dim();  // cells: one per voxel of `box`
+    const int dims[3] = {ext.x(), ext.y(), ext.z()};
+    if (size_t(dims[0]) * size_t(dims[1]) * size_t(dims[2]) > kMaxCells) return nullptr;
+    // The sign of every corner (voxels lo .. lo + dims), then each cell's state.
+    const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
+    std::vector<int8_t> sign(size_t(vd[0]) * vd[1] * vd[2]);
+    tbb::parallel_for(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
+        auto acc = fine.getConstAccessor();
+        for (int z = r.begin(); z != r.end(); ++z)
+            for (int y = 0; y < vd[1]; ++y)
+                for (int x = 0; x < vd[0]; ++x) {
+                    const float v = acc.getValue(lo + openvdb::Coord(x, y, z));
+                    sign[(size_t(z) * vd[1] + y) * vd[0] + x] = v > 0.0f ? 1 : v < 0.0f ? -1 : 0;
+                }
+    });
+    std::vector<CellDistance::State> states(size_t(dims[0]) * dims[1] * dims[2]);
+    tbb::parallel_for(0, dims[2], [&](int z) {
+        for (int y = 0; y < dims[1]; ++y)
+            for (int x = 0; x < dims[0]; ++x) {
+                bool allPos = true, allNeg = true;
+                for (int k = 0; k < 8; ++k) {
+                    const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
+                                           vd[0] + x + (k & 1)];
+                    allPos = allPos && s > 0;
+                    allNeg = allNeg && s < 0;
+                }
+                states[(size_t(z) * dims[1] + y) * dims[0] + x] =
+                    allPos ? CellDistance::kClear
+                           : allNeg ? CellDistance::kInside : CellDistance::kSurface;
+            }
+    });
+    const int origin[3] = {lo.x(), lo.y(), lo.z()};
+    // The coarse cells reach as far as the companion's band.
+    const int margin = int(std::ceil(double(kFarFieldBand) * kFarFieldFactor / CellTables::kCoarseBlock));
+    return std::make_unique<CellTables>(CellTables{
+        CellDistance(origin, dims, states),
+        CellDistance::coarsened(origin, dims, states, CellTables::kCoarseBlock, margin)});
+}
+
+}  // namespace
+
+const CellTables* LevelSet::cellTables() const {
+    // Isolated: the build runs parallel loops, and a thread waiting in them must not take up
+    // outer work that could call this again (and wait on the flag it holds).
+    std::call_once(mCells->once, [&] {
+        tbb::this_task_arena::isolate([&] { mCells->tables = buildCellTables(*mGrid); });
+        mCells->built.store(true, std::memory_order_release);
+    });
+    return mCells->tables.get();
+}
 
 LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
     mVoxelSize = mGrid->voxelSize()[0];

@@ -5,9 +5,6 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/RayIntersector.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cassert>
@@ -184,25 +181,6 @@ private:
 
 }  // namespace
 
-/// A level set's cell tables (cell_distance.h): one-voxel cells a few voxels around its leaves,
-/// and cells of kCoarseBlock voxels reaching as far as its companion's band.
-struct CellTables {
-    static constexpr int kCoarseBlock = 4;
-    CellDistance fine, coarse;
-
-    /// How far (in voxels) every cell around the index-space point p is proven clear: the
-    /// coarse table when it proves kFar voxels, else the one-voxel one; beyond the one-voxel
-    /// table, whose box holds every cell that is not clear, the distance to its box. <= 0 when
-    /// p's cell is not clear.
-    double clearVoxels(const openvdb::Vec3d& p) const {
-        constexpr double kFar = 8.0;
-        double c = 0.0, f;
-        if (coarse.at(p[0], p[1], p[2], c) && c >= kFar) return c;
-        if (fine.at(p[0], p[1], p[2], f)) return std::max(f, c);
-        return std::max(c, fine.distanceOutside(p[0], p[1], p[2]));
-    }
-};
-
 struct Occluder::FarField {
     explicit FarField(LevelSetPtr ls) : levelSet(std::move(ls)) {}
     const openvdb::FloatGrid& get() const { return levelSet->farField(kFarVoxelFactor, kFarBand); }
@@ -252,82 +230,12 @@ struct Occluder::FarField {
         return *errorValue;
     }
 
-    /// The fine grid's cell tables, or null for a grid too large for them (more than
-    /// kMaxCells cells around its leaves) or one that is not a level set.
-    const CellTables* cells() const {
-        // Isolated: the build runs parallel loops, and a thread waiting in them must not take
-        // up outer work that could call this again (and wait on the flag it holds).
-        std::call_once(cellsOnce, [&] {
-            tbb::this_task_arena::isolate([&] { cellsValue = buildCells(levelSet->grid()); });
-        });
-        return cellsValue.get();
-    }
+    /// The level set's cell tables (LevelSet::cellTables), or null.
+    const CellTables* cells() const { return levelSet->cellTables(); }
 
     LevelSetPtr levelSet;
-    mutable std::once_flag errorOnce, cellsOnce;
+    mutable std::once_flag errorOnce;
     mutable std::unique_ptr<CompanionError> errorValue;
-    mutable std::unique_ptr<CellTables> cellsValue;
-
-private:
-    // 24 million cells: 48 MB of table (a grid of about 290 voxels along each axis).
-    static constexpr size_t kMaxCells = size_t(24) << 20;
-
-    /// The table spans the cells around every leaf and every tile inside the surface, a few
-    /// cells beyond: outside it all eight corners of a cell are the background or an outside
-    /// tile, so it is clear, as CellDistance assumes.
-    static std::unique_ptr<CellTables> buildCells(const openvdb::FloatGrid& fine) {
-        const openvdb::FloatTree& tree = fine.tree();
-        if (!(tree.background() > 0.0f)) return nullptr;
-        openvdb::CoordBBox box;
-        if (!tree.evalLeafBoundingBox(box) || box.empty()) return nullptr;
-        // Tiles only (the iterators stop above the leaves).
-        auto off = tree.cbeginValueOff();
-        off.setMaxDepth(openvdb::FloatTree::ValueOffCIter::LEAF_DEPTH - 1);
-        for (; off; ++off)
-            if (!(*off > 0.0f)) box.expand(off.getBoundingBox());
-        auto on = tree.cbeginValueOn();  // active tiles (none in a level set)
-        on.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
-        for (; on; ++on) box.expand(on.getBoundingBox());
-        constexpr int kMargin = 4;
-        box.expand(kMargin);
-        const openvdb::Coord lo = box.min(), ext = box.dim();  // cells: one per voxel of `box`
-        const int dims[3] = {ext.x(), ext.y(), ext.z()};
-        if (size_t(dims[0]) * size_t(dims[1]) * size_t(dims[2]) > kMaxCells) return nullptr;
-        // The sign of every corner (voxels lo .. lo + dims), then each cell's state.
-        const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
-        std::vector<int8_t> sign(size_t(vd[0]) * vd[1] * vd[2]);
-        tbb::parallel_for(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
-            auto acc = fine.getConstAccessor();
-            for (int z = r.begin(); z != r.end(); ++z)
-                for (int y = 0; y < vd[1]; ++y)
-                    for (int x = 0; x < vd[0]; ++x) {
-                        const float v = acc.getValue(lo + openvdb::Coord(x, y, z));
-                        sign[(size_t(z) * vd[1] + y) * vd[0] + x] = v > 0.0f ? 1 : v < 0.0f ? -1 : 0;
-                    }
-        });
-        std::vector<CellDistance::State> states(size_t(dims[0]) * dims[1] * dims[2]);
-        tbb::parallel_for(0, dims[2], [&](int z) {
-            for (int y = 0; y < dims[1]; ++y)
-                for (int x = 0; x < dims[0]; ++x) {
-                    bool allPos = true, allNeg = true;
-                    for (int k = 0; k < 8; ++k) {
-                        const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
-                                               vd[0] + x + (k & 1)];
-                        allPos = allPos && s > 0;
-                        allNeg = allNeg && s < 0;
-                    }
-                    states[(size_t(z) * dims[1] + y) * dims[0] + x] =
-                        allPos ? CellDistance::kClear
-                               : allNeg ? CellDistance::kInside : CellDistance::kSurface;
-                }
-        });
-        const int origin[3] = {lo.x(), lo.y(), lo.z()};
-        // The coarse cells reach as far as the companion's band.
-        const int margin = int(std::ceil(kFarBand * kFarVoxelFactor / CellTables::kCoarseBlock));
-        return std::make_unique<CellTables>(CellTables{
-            CellDistance(origin, dims, states),
-            CellDistance::coarsened(origin, dims, states, CellTables::kCoarseBlock, margin)});
-    }
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -1306,8 +1214,8 @@ struct LevelSetKind {
     struct Cone {
         double rho = 0.0, sLast = -1.0, dLast = 0.0;
     };
-    double skipClear(const Vec3& from, const Vec3& dir, double t0, double t1, Cone* rho) const {
-        const CellTables& tables = *far.cells();
+    double skipClear(const CellTables& tables, const Vec3& from, const Vec3& dir, double t0,
+                     double t1, Cone* rho) const {
         const double hf = levelSet.voxelSize();
         const openvdb::Vec3d p0 = slot->grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
         const openvdb::Vec3d pd =
@@ -1316,7 +1224,8 @@ struct LevelSetKind {
         const double length = t1;
         double tc = t0, r = 1e300, sPrev = -1.0, dPrev = 0.0;
         for (int k = 0; k < kMaxSkips; ++k) {
-            const double d = tables.clearVoxels(p0 + tc * pd) * hf;
+            const openvdb::Vec3d p = p0 + tc * pd;
+            const double d = tables.clearVoxels(p[0], p[1], p[2]) * hf;
             if (d < kNear * hf) break;
             if (rho) {
                 const double sc = tc / length;
@@ -1361,13 +1270,14 @@ struct LevelSetKind {
                     return true;
                 }
             }
-            if (far.cells()) {
-                // Sphere tracing on the cell tables first: a ball they prove clear is crossed
-                // in one step, and the intersector starts only where the segment comes near a
-                // cell that may hold the surface (half a voxel before), or not at all when it
-                // never does. The answer is the intersector's: the tables prove the trilinear
-                // field positive over what is skipped, where the intersector finds nothing.
-                const double tc = skipClear(from, dir, t0, t1, nullptr);
+            if (const CellTables* tables = levelSet.cellTablesIfBuilt()) {
+                // Sphere tracing on the cell tables first (when a certifying caller has had
+                // them built): a ball they prove clear is crossed in one step, and the
+                // intersector starts only where the segment comes near a cell that may hold the
+                // surface (half a voxel before), or not at all when it never does. The answer
+                // is the intersector's: the tables prove the trilinear field positive over what
+                // is skipped, where the intersector finds nothing.
+                const double tc = skipClear(*tables, from, dir, t0, t1, nullptr);
                 if (tc >= t1) return false;
                 t0 = std::max(t0, tc - 0.5 * levelSet.voxelSize());
             }
@@ -1427,11 +1337,12 @@ struct LevelSetKind {
         return levelSetRadius(*slot, far.get(), far.error(), far.cells(), bounds, m, v, want, blocked,
                               tHitFraction, tMiddle, resume);
     }
-    /// The answer and the signed radius together (Query::occludedCertified): the solid's
-    /// closed-form radii first; then sphere tracing on the cell tables from the segment's
-    /// start, which proves a clear segment's cone on the way when it gets through; where it
-    /// stops near the surface, the intersector from there, and after a hit the depth march,
-    /// without one the cone march.
+    /// The answer and the signed radius together (Query::occludedCertified): sphere tracing
+    /// on the cell tables from the segment's start, which proves a clear segment's cone on
+    /// the way when it gets through (and the solid's closed-form radii may prove a wider one);
+    /// where it stops near the surface, the intersector from there, and after a hit the depth
+    /// march, without one the cone march resumed from the tracing's last ball. (Without cell
+    /// tables: the intersector, then radius().)
     bool hitCertified(const Vec3& from, const Vec3& v, const Vec3& dir, const Vec3& invDir,
                       const Box3&, double length, double tMin, double tMax, double want,
                       double& t, double& r) const {
@@ -1439,8 +1350,8 @@ struct LevelSetKind {
         if (!slot) return false;
         double start = -1.0;
         Cone cone;
-        if (far.cells()) {
-            const double tc = skipClear(from, dir, tMin, length, &cone);
+        if (const CellTables* tables = far.cells()) {
+            const double tc = skipClear(*tables, from, dir, tMin, length, &cone);
             if (tc >= length) {
                 // Clear; the solid's closed-form radii may prove a wider cone.
                 double rho = cone.rho;
