@@ -133,12 +133,13 @@ void runShape(const char* name, const Occluder& occ, const std::vector<Segment>&
             hitsBare = hits.combine(std::plus<size_t>());
         };
 
-        // occluded() with the hit distance, then certify() up to `want`: the sum of the
-        // certified radii and how many are > 0.
+        // occluded() with the hit distance, then certify() up to `want` (onePass 0), or
+        // occludedCertified(), the answer and the certificate in one pass as the estimator asks
+        // for them (onePass 1): the sum of the certified radii and how many are > 0.
         const double wants[2] = {1.41, 0.1};
-        double radiusSum[2] = {0.0, 0.0};
-        size_t certified[2] = {0, 0}, hitsCert[2] = {0, 0};
-        auto runCertify = [&](int w) {
+        double radiusSum[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
+        size_t certified[2][2] = {{0, 0}, {0, 0}}, hitsCert[2][2] = {{0, 0}, {0, 0}};
+        auto runCertify = [&](int onePass, int w) {
             const double want = wants[w];
             tbb::enumerable_thread_specific<Occluder::Query> queries(queryProto);
             tbb::combinable<double> sum([] { return 0.0; });
@@ -152,8 +153,13 @@ void runShape(const char* name, const Occluder& occ, const std::vector<Segment>&
                     Certificate cert;
                     for (size_t i = r.begin(); i != r.end(); ++i) {
                         double tHit = -1.0;
-                        const bool hidden = q.occluded(segs[i].from, segs[i].to, &tHit);
-                        q.certify(segs[i].from, segs[i].to, hidden, tHit, want, cert);
+                        bool hidden;
+                        if (onePass) {
+                            hidden = q.occludedCertified(segs[i].from, segs[i].to, want, &tHit, cert);
+                        } else {
+                            hidden = q.occluded(segs[i].from, segs[i].to, &tHit);
+                            q.certify(segs[i].from, segs[i].to, hidden, tHit, want, cert);
+                        }
                         h += hidden;
                         c += cert.radius > 0.0;
                         s += cert.radius;
@@ -162,51 +168,20 @@ void runShape(const char* name, const Occluder& occ, const std::vector<Segment>&
                     nonzero.local() += c;
                     sum.local() += s;
                 });
-            hitsCert[w] = hits.combine(std::plus<size_t>());
-            certified[w] = nonzero.combine(std::plus<size_t>());
-            radiusSum[w] = sum.combine(std::plus<double>());
-        };
-
-        // occludedCertified(): the answer and the certificate in one pass, as the estimator
-        // asks for them.
-        double radiusOne[2] = {0.0, 0.0};
-        size_t certifiedOne[2] = {0, 0}, hitsOne[2] = {0, 0};
-        auto runOnePass = [&](int w) {
-            const double want = wants[w];
-            tbb::enumerable_thread_specific<Occluder::Query> queries(queryProto);
-            tbb::combinable<double> sum([] { return 0.0; });
-            tbb::combinable<size_t> hits([] { return size_t(0); }),
-                nonzero([] { return size_t(0); });
-            tbb::parallel_for(
-                tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                    Occluder::Query& q = queries.local();
-                    size_t h = 0, c = 0;
-                    double s = 0.0;
-                    Certificate cert;
-                    for (size_t i = r.begin(); i != r.end(); ++i) {
-                        double tHit = -1.0;
-                        h += q.occludedCertified(segs[i].from, segs[i].to, want, &tHit, cert);
-                        c += cert.radius > 0.0;
-                        s += cert.radius;
-                    }
-                    hits.local() += h;
-                    nonzero.local() += c;
-                    sum.local() += s;
-                });
-            hitsOne[w] = hits.combine(std::plus<size_t>());
-            certifiedOne[w] = nonzero.combine(std::plus<size_t>());
-            radiusOne[w] = sum.combine(std::plus<double>());
+            hitsCert[onePass][w] = hits.combine(std::plus<size_t>());
+            certified[onePass][w] = nonzero.combine(std::plus<size_t>());
+            radiusSum[onePass][w] = sum.combine(std::plus<double>());
         };
 
         // Alternate the runs so that load from other processes hits them alike; keep the best.
-        double tOcc = 1e300, tBare = 1e300, tCert[2] = {1e300, 1e300}, tOne[2] = {1e300, 1e300};
+        double tOcc = 1e300, tBare = 1e300, tCert[2][2] = {{1e300, 1e300}, {1e300, 1e300}};
         for (int r = 0; r < repeats; ++r) {
             tOcc = std::min(tOcc, seconds(runOcc));
             tBare = std::min(tBare, seconds(runBare));
-            for (int w = 0; w < 2; ++w) {
-                tCert[w] = std::min(tCert[w], seconds([&] { runCertify(w); }));
-                tOne[w] = std::min(tOne[w], seconds([&] { runOnePass(w); }));
-            }
+            for (int w = 0; w < 2; ++w)
+                for (int onePass = 0; onePass < 2; ++onePass)
+                    tCert[onePass][w] = std::min(tCert[onePass][w],
+                                                 seconds([&] { runCertify(onePass, w); }));
         }
 
         std::printf(
@@ -214,20 +189,18 @@ void runShape(const char* name, const Occluder& occ, const std::vector<Segment>&
             "(%.3f s), overhead (a)/(b) = %.3f; hits %zu vs %zu (%s)\n",
             threads, threads > 1 ? "s" : "", n / tOcc, tOcc, n / tBare, tBare, tOcc / tBare,
             hitsOcc, hitsBare, agreement(hitsOcc, hitsBare).c_str());
-        for (int w = 0; w < 2; ++w) {
-            std::printf(
-                "%d thread%s: occluded + certify(want %.2f) %.3g rays/s (%.3f s), (c)/(b) = "
-                "%.3f; mean radius %.4g (%.1f%% of want), certified %.1f%%; hits %zu (%s)\n",
-                threads, threads > 1 ? "s" : "", wants[w], n / tCert[w], tCert[w], tCert[w] / tBare,
-                radiusSum[w] / n, 100.0 * radiusSum[w] / n / wants[w], 100.0 * certified[w] / n,
-                hitsCert[w], agreement(hitsCert[w], hitsBare).c_str());
-            std::printf(
-                "%d thread%s: occludedCertified(want %.2f) %.3g rays/s (%.3f s), (d)/(b) = "
-                "%.3f; mean radius %.4g (%.1f%% of want), certified %.1f%%; hits %zu (%s)\n",
-                threads, threads > 1 ? "s" : "", wants[w], n / tOne[w], tOne[w], tOne[w] / tBare,
-                radiusOne[w] / n, 100.0 * radiusOne[w] / n / wants[w], 100.0 * certifiedOne[w] / n,
-                hitsOne[w], agreement(hitsOne[w], hitsBare).c_str());
-        }
+        for (int w = 0; w < 2; ++w)
+            for (int onePass = 0; onePass < 2; ++onePass)
+                std::printf(
+                    "%d thread%s: %s(want %.2f) %.3g rays/s (%.3f s), %s = %.3f; mean radius "
+                    "%.4g (%.1f%% of want), certified %.1f%%; hits %zu (%s)\n",
+                    threads, threads > 1 ? "s" : "",
+                    onePass ? "occludedCertified" : "occluded + certify", wants[w],
+                    n / tCert[onePass][w], tCert[onePass][w], onePass ? "(d)/(b)" : "(c)/(b)",
+                    tCert[onePass][w] / tBare, radiusSum[onePass][w] / n,
+                    100.0 * radiusSum[onePass][w] / n / wants[w],
+                    100.0 * certified[onePass][w] / n, hitsCert[onePass][w],
+                    agreement(hitsCert[onePass][w], hitsBare).c_str());
     }
 }
 

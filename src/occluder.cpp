@@ -1506,6 +1506,63 @@ bool Occluder::Query::trace(const Vec3& from, const Vec3& to, double* tHit, Clea
     return hit;
 }
 
+namespace {
+
+/// Combines per-obstacle signed radii (> 0 clear, < 0 inside, capped at +-want) into a
+/// segment's certificate: a clear segment's radius is the smallest clear one, a blocked one's
+/// the largest depth; radiusOthers leaves out the obstacle that decides.
+struct RadiusTally {
+    double clearMin, clearSecond;
+    int clearArg = -1;
+    double deepMax = 0.0, deepSecond = 0.0;
+    int deepArg = -1;
+
+    explicit RadiusTally(double want) : clearMin(want), clearSecond(want) {}
+    void add(double r, size_t i) {
+        if (r >= 0.0) {
+            if (r < clearMin) {
+                clearSecond = clearMin;
+                clearMin = r;
+                clearArg = static_cast<int>(i);
+            } else {
+                clearSecond = std::min(clearSecond, r);
+            }
+        } else if (-r > deepMax) {
+            deepSecond = deepMax;
+            deepMax = -r;
+            deepArg = static_cast<int>(i);
+        } else {
+            deepSecond = std::max(deepSecond, -r);
+        }
+    }
+    /// Blocked: one obstacle provably deep is enough, the others must stay clear for
+    /// radiusOthers. Clear: nothing when some obstacle says inside (bounds disagree with the
+    /// answer).
+    void finish(bool blocked, Certificate& out) const {
+        if (blocked) {
+            if (deepArg < 0) return;
+            out.radius = deepMax;
+            out.obstacle = deepArg;
+            out.radiusOthers = deepSecond > 0.0 ? 0.0 : clearMin;
+        } else if (deepArg < 0) {
+            out.radius = clearMin;
+            out.obstacle = clearArg;
+            out.radiusOthers = clearSecond;
+        }
+    }
+};
+
+/// The sphere around a box: its radius against a segment bounds the radius against anything
+/// inside the box (exact, closed form).
+AnalyticSphere sphereAround(const Box3& b) {
+    AnalyticSphere s;
+    s.center = 0.5 * (b.lo + b.hi);
+    s.radius = 0.5 * glm::length(b.hi - b.lo);
+    return s;
+}
+
+}  // namespace
+
 bool Occluder::Query::occludedCertified(const Vec3& from, const Vec3& to, double want,
                                         double* tHit, Certificate& out) {
     const Vec3 v = to - from;
@@ -1523,23 +1580,17 @@ bool Occluder::Query::occludedCertified(const Vec3& from, const Vec3& to, double
     out = Certificate{};
     const Vec3 dir = v / length;
     const Vec3 invDir = 1.0 / dir;
-    // Per obstacle, as certify() combines them: the signed radius (> 0 clear, < 0 inside),
-    // capped at +-want; each obstacle that blocks gives its own hit and the depth after it.
-    double clearMin = want, clearSecond = want;
-    int clearArg = -1;
-    double deepMax = 0.0, deepSecond = 0.0;
-    int deepArg = -1;
+    // Per obstacle, as certify() combines them; each obstacle that blocks gives its own hit and
+    // the depth after it.
+    RadiusTally tally(want);
     double best = std::numeric_limits<double>::infinity();
     const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
     for (size_t k = 0; k < count; ++k) {
         const size_t i = mCandidates ? (*mCandidates)[k] : k;
         const Box3& bounds = mOccluder->bounds(i);
         if (bounds.empty()) continue;
-        AnalyticSphere around;
-        around.center = 0.5 * (bounds.lo + bounds.hi);
-        around.radius = 0.5 * glm::length(bounds.hi - bounds.lo);
         double r = want;
-        if (sphereRadius(around, from, v) < want) {
+        if (sphereRadius(sphereAround(bounds), from, v) < want) {
             double t = 0.0;
             const bool found = visitKind(i, [&](const auto& kind) {
                 return kind.hitCertified(from, v, dir, invDir, bounds, length, eps, length - eps,
@@ -1551,35 +1602,11 @@ bool Occluder::Query::occludedCertified(const Vec3& from, const Vec3& to, double
             }
             r = std::clamp(r, -want, want);
         }
-        if (r >= 0.0) {
-            if (r < clearMin) {
-                clearSecond = clearMin;
-                clearMin = r;
-                clearArg = static_cast<int>(i);
-            } else {
-                clearSecond = std::min(clearSecond, r);
-            }
-        } else if (-r > deepMax) {
-            deepSecond = deepMax;
-            deepMax = -r;
-            deepArg = static_cast<int>(i);
-        } else {
-            deepSecond = std::max(deepSecond, -r);
-        }
+        tally.add(r, i);
     }
     const bool blocked = mLastBlocker >= 0;
     if (blocked && tHit) *tHit = best;
-    if (blocked) {
-        if (deepArg >= 0) {
-            out.radius = deepMax;
-            out.obstacle = deepArg;
-            out.radiusOthers = deepSecond > 0.0 ? 0.0 : clearMin;
-        }
-    } else if (deepArg < 0) {
-        out.radius = clearMin;
-        out.obstacle = clearArg;
-        out.radiusOthers = clearSecond;
-    }
+    tally.finish(blocked, out);
     return blocked;
 }
 
@@ -1589,22 +1616,14 @@ void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, do
     const Vec3 v = to - from;
     if (!(want > 0.0) || !(glm::dot(v, v) > 0.0)) return;
     // Per obstacle: the signed radius (> 0 clear, < 0 inside), capped at +-want.
-    double clearMin = want, clearSecond = want;
-    int clearArg = -1;
-    double deepMax = 0.0, deepSecond = 0.0;
-    int deepArg = -1;
+    RadiusTally tally(want);
     const size_t count = mCandidates ? mCandidates->size() : mOccluder->size();
     for (size_t k = 0; k < count; ++k) {
         const size_t i = mCandidates ? (*mCandidates)[k] : k;
         const Box3& bounds = mOccluder->bounds(i);
         if (bounds.empty()) continue;
-        // Quick bound: the distance from the segment to the bounds' circumscribed sphere
-        // (t <= 1, so it is also a bound on phi / t).
-        // Quick bound: the circumscribed sphere of the bounds (exact radius, closed form).
-        AnalyticSphere around;
-        around.center = 0.5 * (bounds.lo + bounds.hi);
-        around.radius = 0.5 * glm::length(bounds.hi - bounds.lo);
-        const double far = sphereRadius(around, from, v);
+        // Quick bound: the segment's radius against the bounds' circumscribed sphere.
+        const double far = sphereRadius(sphereAround(bounds), from, v);
         double r;
         if (far >= want) {
             r = want;
@@ -1619,34 +1638,9 @@ void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, do
             });
             r = std::clamp(r, -want, want);
         }
-        if (r >= 0.0) {
-            if (r < clearMin) {
-                clearSecond = clearMin;
-                clearMin = r;
-                clearArg = static_cast<int>(i);
-            } else {
-                clearSecond = std::min(clearSecond, r);
-            }
-        } else if (-r > deepMax) {
-            deepSecond = deepMax;
-            deepMax = -r;
-            deepArg = static_cast<int>(i);
-        } else {
-            deepSecond = std::max(deepSecond, -r);
-        }
+        tally.add(r, i);
     }
-    if (blocked) {
-        // One obstacle provably deep is enough; the others must stay clear for radiusOthers.
-        if (deepArg < 0) return;
-        out.radius = deepMax;
-        out.obstacle = deepArg;
-        out.radiusOthers = deepSecond > 0.0 ? 0.0 : clearMin;
-    } else {
-        if (deepArg >= 0) return;  // bounds disagree with the answer: prove nothing
-        out.radius = clearMin;
-        out.obstacle = clearArg;
-        out.radiusOthers = clearSecond;
-    }
+    tally.finish(blocked, out);
 }
 
 }  // namespace penumbra
