@@ -1039,7 +1039,8 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     const PinholeCamera camera(cam, scene.file);
     const Occluder occluder = scene.makeOccluder();
     // The tangent mode's shadow rays ask for distances and certificates: build the far-field
-    // companions (and measure their error) here, not inside the parallel loop.
+    // companions (and measure their error) and the cell tables here, not inside the parallel
+    // loop.
     if ((settingsIn.aci.distanceGuided || settingsIn.aci.coverage) &&
         (settingsIn.method == Method::Aci || settingsIn.method == Method::AciPixel))
         occluder.prepareClearance();

@@ -136,9 +136,11 @@ public:
     class Query;
     Query makeQuery() const;
 
-    /// Builds every level set's far-field companion now (they are otherwise built on the first
-    /// clearance query, by whichever thread asks first while the others wait): call it before
-    /// a parallel loop whose shadow rays ask for clearances.
+    /// Builds every level set's far-field companion and cell tables now (they are otherwise
+    /// built on the first clearance or certificate query, by whichever thread asks first while
+    /// the others wait): call it before a parallel loop whose shadow rays ask for clearances or
+    /// certificates. Once a level set's cell tables exist, every shadow ray against it
+    /// sphere-traces them before the intersector (the same answers, sooner).
     void prepareClearance() const;
 
     /// A level set knows distances only within its narrow band. For the signed clearance of
