@@ -818,6 +818,14 @@ double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, dou
 
 }  // namespace
 
+/// A cone of radius `rho` (at the light) that a caller proved clear up to fraction `t`: where
+/// levelSetRadius's cone march may start.
+namespace {
+struct ConeStart {
+    double t, rho;
+};
+}  // namespace
+
 /// Signed certified radius against one level set, up to `want` (see Certificate). Distances come
 /// from the obstacle's bounds (exact lower bound outside them), its far-field companion (values
 /// within a coarse voxel of the fine surface's distance) and, next to the surface, the fine grid.
@@ -829,7 +837,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                              const CompanionError& coarseError, const CellTables* tables,
                              const Box3& bounds, const Vec3& m,
                              const Vec3& v, double want, bool blocked, double tHit,
-                             double tMiddle, const double* resume = nullptr) {
+                             double tMiddle, const ConeStart* resume = nullptr) {
     const double length = glm::length(v);
     const double hc = coarseError.worst();
     const double bandC = 0.98 * double(coarse.background());
@@ -922,11 +930,10 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                 if (cell > 0.0 && (d >= need || d >= bandF)) return {d, 1e300};
                 if (cell > 0.0) floorLo = std::max(floorLo, d);
                 if (cell < 0.0) ceilHi = d;
-                if (cell < 0.0 && -d >= bandF) {
-                    // Inside, the companion's value (its error is about a voxel) often proves
-                    // deeper than the cells (up to their diagonal); blocked segments take few
-                    // points, so both are read.
-                } else {
+                // Deep inside, the companion's value (its error is about a voxel) often proves
+                // deeper than the cells (up to their diagonal): blocked segments take few
+                // points, so both are read (below). Elsewhere the fine value first.
+                if (!(cell < 0.0 && -d >= bandF)) {
                     vf = fineAt(t);
                     if (std::abs(vf) < bandF) {
                         Range r = fineRange(vf);
@@ -958,10 +965,9 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         // more often and random scene 1 kept 14 pixels over 6 units off, against none.)
         const double rhoMin = want / 64.0;
         double rho = want;
-        // A cone of radius resume[1] proven up to fraction resume[0] by the caller.
         if (resume) {
-            t = resume[0];
-            rho = std::min(want, resume[1]);
+            t = resume->t;
+            rho = std::min(want, resume->rho);
         }
         auto need = [&](double tt) { return 1.25 * rho * tt + 1e-12; };
         // The cone narrowed for a point's bound lo at tt (too close for this cone to step on by
@@ -1298,7 +1304,7 @@ struct LevelSetKind {
     /// `solidOnly`: the closed-form radii of the solid's box and sphere only (0 when they
     /// prove nothing).
     double radius(const Vec3& m, const Vec3& v, double want, bool blocked, double tHitFraction,
-                  bool solidOnly = false, const double* resume = nullptr) const {
+                  bool solidOnly = false, const ConeStart* resume = nullptr) const {
         if (!slot) return want;
         // Every point the tracer can hit lies in the solid's box and in its sphere
         // (LevelSet::solidBoundsWS): a segment clear of either is clear of the level set, with
@@ -1369,8 +1375,8 @@ struct LevelSetKind {
         // cone of the radius proven so far reaches (dLast + L sLast) / (L + rho).
         const double rho = std::min(want, cone.rho);
         if (cone.sLast > 0.0 && rho >= want / 64.0) {
-            const double resume[2] = {(cone.dLast + length * cone.sLast) / (length + rho), rho};
-            r = std::max(0.0, radius(from, v, want, false, -1.0, false, resume));
+            const ConeStart resume{(cone.dLast + length * cone.sLast) / (length + rho), rho};
+            r = std::max(0.0, radius(from, v, want, false, -1.0, false, &resume));
         } else {
             r = std::max(0.0, radius(from, v, want, false, -1.0));
         }
