@@ -1,7 +1,6 @@
 #include "cell_distance.h"
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
+#include "parallel_for.h"
 
 #include <algorithm>
 #include <limits>
@@ -18,7 +17,7 @@ template <class Scratch, class F>
 void forEachLine(const int dims[3], int axis, F&& line) {
     const size_t stride[3] = {1, size_t(dims[0]), size_t(dims[0]) * size_t(dims[1])};
     const int a = (axis + 1) % 3, b = (axis + 2) % 3;
-    tbb::parallel_for(tbb::blocked_range<int>(0, dims[b]), [&](const tbb::blocked_range<int>& r) {
+    detail::parallelFor(tbb::blocked_range<int>(0, dims[b]), [&](const tbb::blocked_range<int>& r) {
         Scratch scratch;
         for (int j = r.begin(); j != r.end(); ++j)
             for (int i = 0; i < dims[a]; ++i)

@@ -1,5 +1,6 @@
 #include "penumbra/level_set.h"
 #include "penumbra/output_files.h"
+#include "parallel_for.h"
 
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
@@ -7,8 +8,6 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/MeshToVolume.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <unistd.h>
@@ -113,7 +112,7 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
     // The sign of every corner (voxels lo .. lo + dims), then each cell's state.
     const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
     std::vector<int8_t> sign(size_t(vd[0]) * vd[1] * vd[2]);
-    tbb::parallel_for(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
+    detail::parallelFor(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
         auto acc = fine.getConstAccessor();
         for (int z = r.begin(); z != r.end(); ++z)
             for (int y = 0; y < vd[1]; ++y)
@@ -123,20 +122,21 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
                 }
     });
     std::vector<CellDistance::State> states(size_t(dims[0]) * dims[1] * dims[2]);
-    tbb::parallel_for(0, dims[2], [&](int z) {
-        for (int y = 0; y < dims[1]; ++y)
-            for (int x = 0; x < dims[0]; ++x) {
-                bool allPos = true, allNeg = true;
-                for (int k = 0; k < 8; ++k) {
-                    const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
-                                           vd[0] + x + (k & 1)];
-                    allPos = allPos && s > 0;
-                    allNeg = allNeg && s < 0;
+    detail::parallelFor(tbb::blocked_range<int>(0, dims[2]), [&](const tbb::blocked_range<int>& r) {
+        for (int z = r.begin(); z != r.end(); ++z)
+            for (int y = 0; y < dims[1]; ++y)
+                for (int x = 0; x < dims[0]; ++x) {
+                    bool allPos = true, allNeg = true;
+                    for (int k = 0; k < 8; ++k) {
+                        const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
+                                               vd[0] + x + (k & 1)];
+                        allPos = allPos && s > 0;
+                        allNeg = allNeg && s < 0;
+                    }
+                    states[(size_t(z) * dims[1] + y) * dims[0] + x] =
+                        allPos ? CellDistance::kClear
+                               : allNeg ? CellDistance::kInside : CellDistance::kSurface;
                 }
-                states[(size_t(z) * dims[1] + y) * dims[0] + x] =
-                    allPos ? CellDistance::kClear
-                           : allNeg ? CellDistance::kInside : CellDistance::kSurface;
-            }
     });
     const int origin[3] = {lo.x(), lo.y(), lo.z()};
     // The coarse cells reach as far as the companion's band.

@@ -27,6 +27,7 @@
 #include "penumbra/form_factor.h"
 #include "penumbra/monte_carlo.h"
 #include "surface_normal.h"
+#include "parallel_for.h"
 #include "thread_sanitizer.h"
 
 namespace penumbra {
@@ -209,7 +210,7 @@ public:
             mCount[k] = std::max(2, int(std::ceil(resolution * size[k] / longest)) + 1);
         mValues.assign(size_t(mCount[0]) * mCount[1] * mCount[2], Rgb(0.0));
         // Every node from its own rays: the same values on any number of threads.
-        tbb::parallel_for(tbb::blocked_range<int>(0, mCount[2]), [&](const tbb::blocked_range<int>& r) {
+        detail::parallelFor(tbb::blocked_range<int>(0, mCount[2]), [&](const tbb::blocked_range<int>& r) {
             Occluder::Query q = occluder.makeQuery();
             for (int k = r.begin(); k < r.end(); ++k)
                 for (int j = 0; j < mCount[1]; ++j)

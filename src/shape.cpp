@@ -10,8 +10,6 @@
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/tree/LeafManager.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <atomic>
@@ -23,7 +21,7 @@
 
 #include "level_set_impl.h"
 #include "penumbra/error.h"
-#include "thread_sanitizer.h"
+#include "parallel_for.h"
 
 namespace penumbra {
 
@@ -446,30 +444,24 @@ FloatGrid::Ptr rasterize(const Field& field, const Box3& boundsWS, double voxel,
 
     std::vector<LeafT*> leaves(leafOrigins.size(), nullptr);
     const float fw = float(w);
-    // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
-    const char forkKey = 0, joinKey = 0;
-    detail::tsanRelease(&forkKey);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, leafOrigins.size(), 8),
-                      [&](const tbb::blocked_range<size_t>& range) {
-                          detail::tsanAcquire(&forkKey);
-                          for (size_t i = range.begin(); i != range.end(); ++i) {
-                              auto leaf = std::make_unique<LeafT>(leafOrigins[i], fw, false);
-                              bool any = false;
-                              for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
-                                  const Coord xyz = leaf->offsetToGlobalCoord(n);
-                                  const double f = field(Vec3(xyz.x(), xyz.y(), xyz.z()) * voxel);
-                                  if (std::fabs(f) < w) {
-                                      leaf->setValueOn(n, float(f));
-                                      any = true;
-                                  } else {
-                                      leaf->setValueOff(n, f < 0.0 ? -fw : fw);
-                                  }
-                              }
-                              if (any) leaves[i] = leaf.release();
-                          }
-                          detail::tsanRelease(&joinKey);
-                      });
-    detail::tsanAcquire(&joinKey);
+    detail::parallelFor(tbb::blocked_range<size_t>(0, leafOrigins.size(), 8),
+                        [&](const tbb::blocked_range<size_t>& range) {
+                            for (size_t i = range.begin(); i != range.end(); ++i) {
+                                auto leaf = std::make_unique<LeafT>(leafOrigins[i], fw, false);
+                                bool any = false;
+                                for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
+                                    const Coord xyz = leaf->offsetToGlobalCoord(n);
+                                    const double f = field(Vec3(xyz.x(), xyz.y(), xyz.z()) * voxel);
+                                    if (std::fabs(f) < w) {
+                                        leaf->setValueOn(n, float(f));
+                                        any = true;
+                                    } else {
+                                        leaf->setValueOff(n, f < 0.0 ? -fw : fw);
+                                    }
+                                }
+                                if (any) leaves[i] = leaf.release();
+                            }
+                        });
     FloatTree& tree = grid->tree();
     for (LeafT* leaf : leaves) {
         if (leaf) tree.addLeaf(leaf);
