@@ -122,17 +122,21 @@ struct GalleryCase {
 // clear rays' cones come from sphere tracing on the cell tables, and hits from an intersector
 // started where that tracing stopped; other discs and hit distances a small part of a voxel
 // apart, so other coverage rays; the default's and fog's rows and the paper's, arcs and Monte
-// Carlo rows unchanged).
+// Carlo rows unchanged). The default rows of default, table1, csg and bunny on 2026-12-01
+// (ninth session) when the far-field companion began to be built from a mesh with adaptivity
+// 0.005 (level_set.cpp, farField: a slightly different companion and measured error, so other
+// certificates and coverage rays; the default scene's 200 x 200 image within 0.06 of 255 of
+// the old one, the bunny's 300 x 300 within 1.9 at one pixel; the rest unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "8c8e19035ffc57a6"},
+    {"default", "", "464c5700ec31d49a"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "dba40be5ed85c3b9"},
+    {"table1", "", "fb0e55d4b0af3759"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "733a95f0147243c0"},
+    {"csg", "", "72a5af87d8a23c10"},
     {"vdb_tool", "", "fd6bbcf4755e1426"},
-    {"bunny", "", "25883c3cb88384a5"},
+    {"bunny", "", "91e2d7bd7a9ec655"},
     {"fog", "", "409ee9537da88e4e"},
 };
 
