@@ -3,7 +3,6 @@
 #include <openvdb/math/Ray.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
-#include <openvdb/tools/LevelSetRebuild.h>
 #include <openvdb/tools/RayIntersector.h>
 
 #include <algorithm>
@@ -815,15 +814,12 @@ double boxRadiusSearch(const AnalyticBox& box, const Vec3& m, const Vec3& v, dou
     return best;
 }
 
-
-}  // namespace
-
 /// A cone of radius `rho` (at the light) that a caller proved clear up to fraction `t`: where
 /// levelSetRadius's cone march may start.
-namespace {
 struct ConeStart {
     double t, rho;
 };
+
 }  // namespace
 
 /// Signed certified radius against one level set, up to `want` (see Certificate). Distances come
