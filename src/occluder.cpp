@@ -1026,6 +1026,89 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         inside = blocked;
     }
     if (!inside) return 0.0;
+    // After a hit whose chord's middle (through the solid's box and sphere) lies in an inside
+    // cell of the coarse table, the march below leaps there first: a compact shape is deepest
+    // about there, and the march takes two or three points. Otherwise (the bunny's chords miss
+    // their middle 40% of the time, and the march then crawls from the entry) the tables choose
+    // where to measure: the coarse table along the chord, a point per coarse cell from the hit
+    // until the chord leaves its inside cells (or the table, or the depth over t falls under
+    // half its best: past the deep part); three candidates read in the one-voxel table (which
+    // loses a voxel or two to the cells' boxes, the coarse one up to two of its cells): the
+    // coarse point of the largest depth over t, the middle of the coarse points of the largest
+    // depth (on a quantized plateau the deepest point lies nearer its middle) and tMiddle; and
+    // range() at the best of them (the companion proves a voxel or so more: with the one-voxel
+    // table alone the default scene took 2.6% more rays). A chord through no coarse inside cell
+    // (a thin part) scans the one-voxel table a voxel at a time instead, up to 64 points; one
+    // through surface cells only takes the march. Scanning every chord cost the level-set
+    // sphere of bench_occluder 9% and saved the bunny as much; this way the bunny saves 10%
+    // and the sphere loses 3% (docs/BENCHMARKS.md, 2026-12-02).
+    bool middleInside = false;
+    if (tHit >= 0.0 && tables && tMiddle > tHit && tMiddle < 1.0) {
+        const openvdb::Vec3d p = f0 + tMiddle * fv;
+        double cell;
+        middleInside = tables->coarse.at(p[0], p[1], p[2], cell) && cell < 0.0;
+    }
+    if (tHit >= 0.0 && tables && !middleInside) {
+        const double voxels = std::sqrt(fv.lengthSqr());  // the segment's length in voxels
+        // The largest depth over t in `table` (world units), at bestT; `middle`: the middle of
+        // the points of the largest depth.
+        auto scan = [&](const CellDistance& table, double step, int maxPoints, double& bestT,
+                        double& middle) {
+            double best = 0.0;  // the largest depth over t, in voxels
+            double top = 0.0, topFirst = -1.0, topLast = -1.0;
+            const double dt = step / voxels;
+            double s = tHit + 0.5 * dt;
+            for (int k = 0; k < maxPoints && s <= 1.0; ++k, s += dt) {
+                const openvdb::Vec3d p = f0 + s * fv;
+                double cell;
+                if (!table.at(p[0], p[1], p[2], cell) || cell > 0.0) break;
+                if (-cell > top) {
+                    top = -cell;
+                    topFirst = topLast = s;
+                } else if (-cell == top) {
+                    topLast = s;
+                }
+                if (cell < 0.0 && -cell > best * s) {
+                    best = -cell / s;
+                    bestT = s;
+                    if (best * hf >= want) break;
+                } else if (-cell < 0.5 * best * s) {
+                    break;
+                }
+            }
+            middle = 0.5 * (topFirst + topLast);
+            return best * hf;
+        };
+        double bestT = -1.0, middle = -1.0;
+        double deep = scan(tables->coarse, CellTables::kCoarseBlock, 1 << 20, bestT, middle);
+        if (deep >= want) return -want;
+        if (bestT > 0.0) {
+            double at = bestT;  // the best candidate so far
+            for (const double c : {bestT, middle, tMiddle}) {
+                if (!(c > tHit && c <= 1.0) || (c != bestT && c == at)) continue;
+                const openvdb::Vec3d p = f0 + c * fv;
+                double cell;
+                if (tables->fine.at(p[0], p[1], p[2], cell) && -cell * hf / c > deep) {
+                    deep = -cell * hf / c;
+                    at = c;
+                }
+            }
+            if (deep >= want) return -want;
+            nearSurface = false;
+            const Range r = range(at, 0.0);
+            if (r.hi < 0.0) deep = std::max(deep, -r.hi / at);
+            return -std::min(deep, want);
+        }
+        double thin = scan(tables->fine, 1.0, 64, bestT, middle);
+        if (thin > 0.0) {
+            if (thin < want) {
+                nearSurface = false;
+                const Range r = range(bestT, 0.0);
+                if (r.hi < 0.0) thin = std::max(thin, -r.hi / bestT);
+            }
+            return -std::min(thin, want);
+        }
+    }
     // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
     // the largest -hi / t over points inside, until it reaches `want`. Any inner point proves
     // its own disc, so the points need not be dense. After a hit, the first point leaps past
