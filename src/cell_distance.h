@@ -69,10 +69,6 @@ public:
         return std::sqrt(s);
     }
 
-    /// The largest distance the table stores, in voxels: a value of +-capVoxels() means at
-    /// least that far.
-    double capVoxels() const { return 127.0 * mUnit; }
-
     /// Bytes held (the table: one per cell).
     size_t bytes() const { return mQuarters.size(); }
 

@@ -1040,8 +1040,8 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     // table alone the default scene took 2.6% more rays). A chord through no coarse inside cell
     // (a thin part) scans the one-voxel table a voxel at a time instead, up to 64 points; one
     // through surface cells only takes the march. Scanning every chord cost the level-set
-    // sphere of bench_occluder 9% and saved the bunny as much; this way the bunny saves 10%
-    // and the sphere loses 3% (docs/BENCHMARKS.md, 2026-12-02).
+    // sphere of bench_occluder's segments 9% and saved the bunny as much; this way the bunny
+    // saves 6-8% and the sphere moves within 2% (docs/BENCHMARKS.md, 2026-12-02).
     bool middleInside = false;
     if (tHit >= 0.0 && tables && tMiddle > tHit && tMiddle < 1.0) {
         const openvdb::Vec3d p = f0 + tMiddle * fv;
