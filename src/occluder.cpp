@@ -1082,8 +1082,8 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         double bestT = -1.0, middle = -1.0;
         double deep = scan(tables->coarse, CellTables::kCoarseBlock, 1 << 20, bestT, middle);
         if (deep >= want) return -want;
+        double at = bestT;  // where the companion measures (> 0 once a depth is proven)
         if (bestT > 0.0) {
-            double at = bestT;  // the best candidate so far
             for (const double c : {bestT, middle, tMiddle}) {
                 if (!(c > tHit && c <= 1.0) || (c != bestT && c == at)) continue;
                 const openvdb::Vec3d p = f0 + c * fv;
@@ -1093,20 +1093,16 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                     at = c;
                 }
             }
-            if (deep >= want) return -want;
-            nearSurface = false;
-            const Range r = range(at, 0.0);
-            if (r.hi < 0.0) deep = std::max(deep, -r.hi / at);
-            return -std::min(deep, want);
+        } else {
+            deep = scan(tables->fine, 1.0, 64, at, middle);
         }
-        double thin = scan(tables->fine, 1.0, 64, bestT, middle);
-        if (thin > 0.0) {
-            if (thin < want) {
+        if (at > 0.0) {
+            if (deep < want) {
                 nearSurface = false;
-                const Range r = range(bestT, 0.0);
-                if (r.hi < 0.0) thin = std::max(thin, -r.hi / bestT);
+                const Range r = range(at, 0.0);
+                if (r.hi < 0.0) deep = std::max(deep, -r.hi / at);
             }
-            return -std::min(thin, want);
+            return -std::min(deep, want);
         }
     }
     // The segment comes within the bounds' uncertainty of the surface at t: sample its depth,
