@@ -256,6 +256,9 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     }
     Scratch& sc = *mScratch;
     Estimate est;
+    // A point the light does not face, or whose horizon hides all of it, receives nothing: F = 0
+    // exactly, so its bound (when one is asked for) is 0, not "none".
+    if (mSettings.coverage && mSettings.errorBound) est.errorBound = 0.0;
     if (!facesLight(light, r.point)) return est;
     bool above = false;
     for (const Vec3& c : light.polygon()) above |= glm::dot(c - r.point, r.normal) > 0.0;

@@ -382,6 +382,29 @@ TEST_CASE("coverage: a point whose first ray's disc covers the light needs one r
     CHECK(contourIntegral(umbra, light, q, paper).counts.shadowRays() == 9);
 }
 
+TEST_CASE("coverage: a point that receives nothing has a bound of 0, not none",
+          "[aci][coverage]") {
+    // Without a ray: behind the light, and below the horizon of a receiver facing away. F is 0
+    // exactly there, so is the bound (`probe --error-bound` printed nan for such points until
+    // 2026-12-02, as it does for the methods that give no bound).
+    const RectLight light = test::paperLight();
+    Occluder occ({AnalyticSphere{Vec3(0.0, 0.0, 1.2), 0.6}});
+    Occluder::Query q = occ.makeQuery();
+    const Receiver behind{light.corner + 0.5 * (light.edgeU + light.edgeV) - light.normal(), kUp};
+    const Receiver facingAway{Vec3(0.0, 0.0, 0.0), -kUp};
+    for (const Receiver& r : {behind, facingAway}) {
+        const Estimate e = contourIntegral(r, light, q);
+        CAPTURE(r.point, r.normal);
+        CHECK(e.counts.shadowRays() == 0);
+        CHECK(e.formFactor == 0.0);
+        CHECK(e.errorBound == 0.0);
+    }
+    // The paper's mode gives no bound anywhere.
+    AciSettings paper;
+    applyAciMode(paper, AciMode::Paper);
+    CHECK(std::isnan(contourIntegral(behind, light, q, paper).errorBound));
+}
+
 TEST_CASE("coverage: a thin shadow reaching past its located contour piece (random scene 5)",
           "[aci][coverage]") {
     // tests/scenes/random_seed5.json is bench_random's scene for seed 5 (bench/bench_random.cpp).
