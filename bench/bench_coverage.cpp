@@ -6,7 +6,9 @@
 // level sets' own voxelization error is about 0.005 voxel, tests/test_level_set_bias.cpp).
 // Prints, per ACI mode and Monte Carlo at equal time: rays per point, microseconds per point on
 // one thread, maximum and mean error relative to the unoccluded form factor, and, for the
-// default mode, the median error bound against the median error.
+// default mode, the median error bound against the median error; under each ACI mode, its rays
+// per point in penumbra, fully lit and in umbra (by the exact answer), and how many of them
+// certified coverage cast.
 // Not a test: it only prints figures. Usage: bench_coverage [scenes [points-per-scene [analytic|levelset]]]
 // (`analytic`: the exact spheres only, without building level sets; `levelset`: the level sets only).
 #include <algorithm>
@@ -37,6 +39,10 @@ struct Case {
 struct Totals {
     std::vector<double> errors, bounds;
     double rays = 0, seconds = 0;
+    // Per point: its rays, of them coverage's, and what it sees (0 umbra, 1 penumbra, 2 fully
+    // lit, by the exact answer).
+    std::vector<double> pointRays, pointCoverage;
+    std::vector<int> kind;
 };
 
 RectLight light2x2() { return test::paperLight(); }
@@ -83,6 +89,10 @@ Totals run(const std::vector<Case>& cases, const std::vector<Occluder>& occluder
             t.errors.push_back(std::abs(out[k].formFactor - cases[s].exact[k]) / cases[s].full[k]);
             t.bounds.push_back(out[k].errorBound / cases[s].full[k]);
             t.rays += double(out[k].counts.shadowRays());
+            t.pointRays.push_back(double(out[k].counts.shadowRays()));
+            t.pointCoverage.push_back(double(out[k].counts.coverageRays));
+            const double seen = cases[s].exact[k] / cases[s].full[k];
+            t.kind.push_back(seen < 1e-9 ? 0 : seen > 1.0 - 1e-9 ? 2 : 1);
         }
     }
     return t;
@@ -109,6 +119,26 @@ void print(const char* occ, const char* name, const Totals& t) {
         std::printf(" %8.4f%% %6d\n", 100 * median(t.bounds), outside);
     else
         std::printf("        -      -\n");
+}
+
+// Rays per point by what the point sees (issue 11 counts rays per penumbra point).
+void printByKind(const Totals& t) {
+    const char* names[3] = {"in umbra", "in penumbra", "fully lit"};
+    std::printf("%-10s   ", "");
+    for (int kd : {1, 2, 0}) {
+        double rays = 0, coverage = 0;
+        int n = 0;
+        for (size_t i = 0; i < t.kind.size(); ++i) {
+            if (t.kind[i] != kd) continue;
+            rays += t.pointRays[i];
+            coverage += t.pointCoverage[i];
+            ++n;
+        }
+        if (n == 0) continue;
+        std::printf("%s%d %s: %.1f rays/pt", kd == 1 ? "" : "; ", n, names[kd], rays / n);
+        if (coverage > 0) std::printf(" (%.1f coverage)", coverage / n);
+    }
+    std::printf("\n");
 }
 
 }  // namespace
@@ -152,6 +182,7 @@ int main(int argc, char** argv) {
             std::string name = std::string("aci ") + aciModeName(mode) +
                                (mode == AciMode::Tangent ? " (default)" : "");
             print(occ, name.c_str(), t);
+            printByKind(t);
             if (mode == AciMode::Tangent) def = t;
         }
         {

@@ -321,7 +321,9 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
             ++coverageRays;
             lat.certifyNext = true;
+            const uint64_t traced = lat.counts.secondLevelRays;
             const bool vis = lat.visible(q);
+            lat.counts.coverageRays += lat.counts.secondLevelRays - traced;
             lat.certifyNext = false;
             if ((vis ? 1 : 0) != lat.predicted(q) && repasses < kMaxRepasses) {
                 ++repasses;

@@ -48,6 +48,7 @@ Method parseMethod(const std::string& name, const std::string& flag = "--method"
 struct AciCounts {
     uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
     uint64_t secondLevelRays = 0;  ///< saddle centres, dichotomies, checks, refinements
+    uint64_t coverageRays = 0;     ///< of the second-level rays, those certified coverage cast
     uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
     uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
     uint64_t squaresRefined = 0;
@@ -59,6 +60,7 @@ struct AciCounts {
     void merge(const AciCounts& o) {
         firstLevelRays += o.firstLevelRays;
         secondLevelRays += o.secondLevelRays;
+        coverageRays += o.coverageRays;
         cacheHits += o.cacheHits;
         reusedRays += o.reusedRays;
         squaresRefined += o.squaresRefined;
