@@ -276,8 +276,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         est.dg = lat.dg / (2.0 * kPi);
         est.formFactor = glm::dot(est.g, r.normal);
         for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
-        est.errorBound = mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
-        est.counts = lat.counts;
+        est.counts = lat.counts;  // (its bound, 0 when asked for, was set above)
         est.blockers = distinct(sc.mBlockers);
         return est;
     }
