@@ -14,7 +14,7 @@ namespace penumbra {
 // Coverage: a ray to the light's centre; true when its disc covers the whole light (which
 // is then wholly visible or wholly hidden, and integrated).
 bool ContourIntegrator::Lattice::wholeLight() {
-    const LatticePoint centre{N / 2, N / 2};
+    const LatticePoint centre{Na / 2, Nb / 2};
     const Vec3 pc = pointOf(centre);
     for (const Vec3& q : light.polygon())
         if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
@@ -22,7 +22,7 @@ bool ContourIntegrator::Lattice::wholeLight() {
     const bool vis = visible(centre, true);
     wantWhole = false;
     if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
-    const Certificate& cert = scratch.mCert[static_cast<size_t>(centre.b) * (N + 1) + centre.a];
+    const Certificate& cert = scratch.mCert[index(centre)];
     if (light.shape == LightShape::Disc) {
         // The frame's centre is the disc's: its radius covers it.
         if (!(light.radius < cert.radius)) return false;
@@ -51,6 +51,12 @@ double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const
     return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
 }
 
+// Form factor of the light's whole frame, for bounds.
+double ContourIntegrator::Lattice::wholeFormFactor() const {
+    const Vec3 p0 = pointOf({0, 0}), p1 = pointOf({Na, 0}), p2 = pointOf({Na, Nb}), p3 = pointOf({0, Nb});
+    return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
+}
+
 // Whether the part of the cell (lattice coordinates a0, b0, side `size`, centre `centre` on the
 // light) above the horizon lies in one of the gathered discs.
 bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size,
@@ -63,9 +69,7 @@ bool ContourIntegrator::Lattice::cellInDisc(double a0, double b0, double size,
     Vec3 pts[8] = {};
     int n = -1;  // not found yet
     auto findPoints = [&] {
-        const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
-                           light.point((a0 + size) / N, (b0 + size) / N),
-                           light.point(a0 / N, (b0 + size) / N)};
+        const Vec3 q[4] = {at(a0, b0), at(a0 + size, b0), at(a0 + size, b0 + size), at(a0, b0 + size)};
         double h[4];
         for (int i = 0; i < 4; ++i) h[i] = above(q[i]);
         n = 0;
@@ -112,9 +116,7 @@ bool ContourIntegrator::Lattice::mayHold(const Disc& d, double dist, double reac
 
 // Whether the cell lies wholly outside a polygon light's cutting edges or a disc's circle.
 bool ContourIntegrator::Lattice::cellOutside(double a0, double b0, double size) const {
-    const Vec3 q[4] = {light.point(a0 / N, b0 / N), light.point((a0 + size) / N, b0 / N),
-                       light.point((a0 + size) / N, (b0 + size) / N),
-                       light.point(a0 / N, (b0 + size) / N)};
+    const Vec3 q[4] = {at(a0, b0), at(a0 + size, b0), at(a0 + size, b0 + size), at(a0, b0 + size)};
     for (size_t i = 0; i < cuts.size(); ++i) {
         bool all = true;
         for (const Vec3& p : q) all = all && cutValue(i, p) < 0.0;
@@ -150,7 +152,7 @@ double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segmen
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
-    const Vec3 c = light.point((a0 + 0.5 * size) / N, (b0 + 0.5 * size) / N);
+    const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     if (cellInDisc(a0, b0, size, c)) return;
     if (size > minSize) {
         const double h = 0.5 * size;
@@ -162,8 +164,7 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     if (minSize <= 1.0) {
         // The final count: a cell within epsilon of a located contour piece belongs to the
         // piece's strip (its own term of the bound), not to what coverage left open.
-        const double halfDiag = 0.5 * glm::length(light.point((a0 + size) / N, (b0 + size) / N) -
-                                                  light.point(a0 / N, b0 / N));
+        const double halfDiag = size * cellReach;
         for (const Segment& g : scratch.mNearSegs)
             if (!g.border && distanceToSegment(c, g) + halfDiag <= epsWorld) return;
     }
@@ -186,12 +187,12 @@ void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d, double dist)
 // its cells of kCoverageCell units is near proven ground, i.e. its own centre's gap plus the
 // distance to the farthest of them is small; coverage's next ray goes to the largest.
 double ContourIntegrator::Lattice::coverageKey(const Uncovered& u) const {
-    return u.gap + kHalfSqrt2 * (u.size - kCoverageCell) * unit;
+    return u.gap + (u.size - kCoverageCell) * cellReach;
 }
 
 // Form factor of the uncovered cells (the elementary form factor at each centre).
 double ContourIntegrator::Lattice::uncoveredFormFactor() const {
-    const double area = light.area() / (double(N) * N);
+    const double area = light.area() / (double(Na) * Nb);
     double sum = 0.0;
     for (const Uncovered& u : scratch.mUncovered) {
         const Vec3 d = u.centre - rec.point;
@@ -219,7 +220,7 @@ double ContourIntegrator::Lattice::finalUncoveredFormFactor() {
 
 // Gathers the discs and contour segments that may matter for the leaf square (x0, y0, s).
 void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
-    const Vec3 centre = light.point((x0 + 0.5 * s) / N, (y0 + 0.5 * s) / N);
+    const Vec3 centre = at(x0 + 0.5 * s, y0 + 0.5 * s);
     const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                        glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
     auto nearDisc = [&](const Disc& d) { return glm::length(d.c - centre) < d.r + half; };
@@ -243,7 +244,7 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
 // of B's centre plus B's half diagonal: a bucket keeps everything that test passes.
 
 Vec3 ContourIntegrator::Lattice::bucketCentre(int i, int j) const {
-    return light.point((i + 0.5) / p, (j + 0.5) / p);
+    return light.point((i + 0.5) / pa, (j + 0.5) / pb);
 }
 
 // Adds `index` to the buckets whose centre may lie within `reach` (world length) of the lattice
@@ -253,16 +254,16 @@ void ContourIntegrator::Lattice::addToBuckets(std::vector<std::vector<uint32_t>>
                                               uint32_t index, double a0, double b0, double a1,
                                               double b1, double reach, const Keep& keep) {
     const double da = reach * perUnitA + 1.0, db = reach * perUnitB + 1.0;
-    auto range = [&](double lo, double hi, int& i0, int& i1) {
-        i0 = static_cast<int>(std::clamp(std::floor(lo / bucketSide), 0.0, double(p - 1)));
-        i1 = static_cast<int>(std::clamp(std::floor(hi / bucketSide), 0.0, double(p - 1)));
+    auto range = [&](double lo, double hi, int last, int& i0, int& i1) {
+        i0 = static_cast<int>(std::clamp(std::floor(lo / bucketSide), 0.0, double(last)));
+        i1 = static_cast<int>(std::clamp(std::floor(hi / bucketSide), 0.0, double(last)));
     };
     int i0, i1, j0, j1;
-    range(a0 - da, a1 + da, i0, i1);
-    range(b0 - db, b1 + db, j0, j1);
+    range(a0 - da, a1 + da, pa - 1, i0, i1);
+    range(b0 - db, b1 + db, pb - 1, j0, j1);
     for (int j = j0; j <= j1; ++j)
         for (int i = i0; i <= i1; ++i)
-            if (keep(bucketCentre(i, j))) buckets[static_cast<size_t>(j) * p + i].push_back(index);
+            if (keep(bucketCentre(i, j))) buckets[static_cast<size_t>(j) * pa + i].push_back(index);
 }
 
 // Disc `index`, centred on lattice point `at`.
@@ -279,8 +280,8 @@ void ContourIntegrator::Lattice::addSegments(uint32_t seg0) {
         const Segment& g = scratch.mSegs[i];
         const double reach = (segmentReach() + bucketReach) * (1.0 + 1e-9) + 1e-6 * unit;
         const Vec2 ua = light.coordinates(g.a), ub = light.coordinates(g.b);
-        addToBuckets(scratch.mSegBuckets, i, std::min(ua.x, ub.x) * N, std::min(ua.y, ub.y) * N,
-                     std::max(ua.x, ub.x) * N, std::max(ua.y, ub.y) * N, reach,
+        addToBuckets(scratch.mSegBuckets, i, std::min(ua.x, ub.x) * Na, std::min(ua.y, ub.y) * Nb,
+                     std::max(ua.x, ub.x) * Na, std::max(ua.y, ub.y) * Nb, reach,
                      [&](const Vec3& c) { return distanceToSegment(c, g) < reach; });
     }
 }
@@ -296,8 +297,8 @@ void ContourIntegrator::Lattice::addLeaf(const Leaf& leaf) {
 // The bucket holding the lattice square (x0, y0, s), -1 when no one bucket does.
 int ContourIntegrator::Lattice::bucketOf(int x0, int y0, int s) const {
     const int i = x0 / bucketSide, j = y0 / bucketSide;
-    if (i >= p || j >= p || x0 + s > (i + 1) * bucketSide || y0 + s > (j + 1) * bucketSide) return -1;
-    return j * p + i;
+    if (i >= pa || j >= pb || x0 + s > (i + 1) * bucketSide || y0 + s > (j + 1) * bucketSide) return -1;
+    return j * pa + i;
 }
 
 // Calls f(index) for every leaf holding lattice point q (inside or on its border), in no
@@ -305,14 +306,14 @@ int ContourIntegrator::Lattice::bucketOf(int x0, int y0, int s) const {
 template <class F>
 bool ContourIntegrator::Lattice::forLeavesHolding(LatticePoint q, const F& f) const {
     int is[2], js[2], ni = 0, nj = 0;
-    const int ia = std::min(q.a / bucketSide, p - 1), jb = std::min(q.b / bucketSide, p - 1);
+    const int ia = std::min(q.a / bucketSide, pa - 1), jb = std::min(q.b / bucketSide, pb - 1);
     is[ni++] = ia;
     if (q.a == ia * bucketSide && ia > 0) is[ni++] = ia - 1;
     js[nj++] = jb;
     if (q.b == jb * bucketSide && jb > 0) js[nj++] = jb - 1;
     for (int y = 0; y < nj; ++y)
         for (int x = 0; x < ni; ++x)
-            for (uint32_t i : scratch.mLeafBuckets[static_cast<size_t>(js[y]) * p + is[x]]) {
+            for (uint32_t i : scratch.mLeafBuckets[static_cast<size_t>(js[y]) * pa + is[x]]) {
                 const Leaf& leaf = scratch.mLeaves[i];
                 if (q.a < leaf.x0 || q.a > leaf.x0 + leaf.s || q.b < leaf.y0 || q.b > leaf.y0 + leaf.s)
                     continue;
@@ -440,7 +441,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
 // another answer than the square's uniform one (visible: 1, hidden: 0; -1: any answer).
 bool ContourIntegrator::Lattice::markedInside(int x0, int y0, int s, int uniform) const {
     for (uint32_t idx : scratch.mMarked) {
-        const int a = static_cast<int>(idx % (N + 1)), b = static_cast<int>(idx / (N + 1));
+        const int a = static_cast<int>(idx % (Na + 1)), b = static_cast<int>(idx / (Na + 1));
         if (a < x0 || a > x0 + s || b < y0 || b > y0 + s) continue;
         if ((a == x0 || a == x0 + s) && (b == y0 || b == y0 + s)) continue;
         if (uniform < 0 || (scratch.mSample[idx] == kVisible) != (uniform == 1)) return true;
@@ -452,7 +453,7 @@ bool ContourIntegrator::Lattice::markedInside(int x0, int y0, int s, int uniform
 // farther than epsilon from that leaf's contour: a shadow or window the pass stepped over
 // (say, two crossings of one side found from two squares of different sizes).
 bool ContourIntegrator::Lattice::contradicts(uint32_t idx) const {
-    const LatticePoint q{static_cast<int>(idx % (N + 1)), static_cast<int>(idx / (N + 1))};
+    const LatticePoint q{static_cast<int>(idx % (Na + 1)), static_cast<int>(idx / (Na + 1))};
     const float sv = scratch.mSample[idx];
     if (sv == kBelowHorizon) return false;
     const int answer = sv == kVisible ? 1 : 0;

@@ -58,35 +58,52 @@ std::vector<uint32_t> distinct(std::vector<uint32_t> v) {
 
 }  // namespace
 
+FirstLevelGrid firstLevelGrid(const RectLight& light, const AciSettings& settings) {
+    const int p = std::max(1, settings.grid);
+    FirstLevelGrid out{p, p};
+    if (!settings.aspectGrid) return out;
+    const double u = glm::length(light.edgeU), v = glm::length(light.edgeV);
+    // At most 8 times, and never so many that the lattice along the longer edge outgrows
+    // kMaxLatticeUnits (evaluate() would take dichotomy steps off both edges instead).
+    const long fits = std::max(1L, kMaxLatticeUnits / (long(p) << (std::max(0, settings.steps) + 1)));
+    const auto times = [&](double ratio) {
+        return static_cast<int>(std::clamp(std::lround(ratio), 1L, std::min(8L, fits)));
+    };
+    if (u > v) out.a = p * times(u / v);
+    if (v > u) out.b = p * times(v / u);
+    return out;
+}
+
 ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l,
-                                    Occluder::Query& q, int grid, int steps)
-    : self(s), scratch(*s.mScratch), rec(r), light(l), query(q), p(grid), n(steps),
-      N(grid << (steps + 1)) {
+                                    Occluder::Query& q, FirstLevelGrid grid, int steps)
+    : self(s), scratch(*s.mScratch), rec(r), light(l), query(q), pa(grid.a), pb(grid.b),
+      n(steps), Na(grid.a << (steps + 1)), Nb(grid.b << (steps + 1)) {
     origin = r.point + s.mSettings.rayOffset * r.normal;
     lightNormal = l.normal();
     cuts = cuttingEdges(l);
     shaped = l.shape != LightShape::Rect;
-    epsWorld = (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;  // 2 units, averaged
-    // Half the light's diagonal: what covers the light from its centre, or a 2 x 2 first
-    // level's square from one of its corners.
-    unit = 0.5 * (glm::length(l.edgeU) + glm::length(l.edgeV)) / N;
+    const Vec3 unitU = l.edgeU / double(Na), unitV = l.edgeV / double(Nb);
+    unit = 0.5 * (glm::length(unitU) + glm::length(unitV));
+    epsWorld = 2.0 * unit;  // 2 units, averaged over the two edges
+    // A cell of one unit's farthest point from its centre.
+    cellReach = 0.5 * std::max(glm::length(unitU + unitV), glm::length(unitU - unitV));
+    // Half the light's diagonal: what covers the light from its centre (with a margin: a radius
+    // is reported up to `want` exactly, and must exceed it).
     const double diagonal = std::max(glm::length(l.edgeU + l.edgeV), glm::length(l.edgeU - l.edgeV));
-    cellReach = 0.5 * diagonal / N;
-    // (With a margin: a radius is reported up to `want` exactly, and must exceed it.)
     want = 0.51 * diagonal;
     // Other certified rays ask for what covers the first-level squares around a corner from
-    // that corner alone (the same as `want` up to p = 2): smaller discs are cheaper to prove,
-    // and they stay in few of coverage's buckets.
-    wantSquare = want * std::min(1.0, 2.0 / grid);
-    const size_t size = static_cast<size_t>(N + 1) * (N + 1);
+    // that corner alone, a square's diagonal (the same as `want` for a 2 x 2 first level):
+    // smaller discs are cheaper to prove, and they stay in few of coverage's buckets.
+    wantSquare = std::min(want, 2.0 * (2 << n) * cellReach * 1.02);
+    const size_t size = static_cast<size_t>(Na + 1) * (Nb + 1);
     if (s.mSettings.coverage && scratch.mCert.size() < size) scratch.mCert.resize(size);
     bucketSide = 2 << n;
     bucketReach = cellReach * bucketSide;
     const double cross = glm::length(glm::cross(l.edgeU, l.edgeV));
-    perUnitA = N * glm::length(l.edgeV) / cross;
-    perUnitB = N * glm::length(l.edgeU) / cross;
+    perUnitA = Na * glm::length(l.edgeV) / cross;
+    perUnitB = Nb * glm::length(l.edgeU) / cross;
     if (s.mSettings.coverage) {
-        const size_t buckets = static_cast<size_t>(p) * p;
+        const size_t buckets = static_cast<size_t>(pa) * pb;
         for (auto* v : {&scratch.mDiscBuckets, &scratch.mSegBuckets, &scratch.mLeafBuckets}) {
             if (v->size() < buckets) v->resize(buckets);
             for (auto& b : *v) b.clear();
@@ -113,7 +130,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
 
 // Visibility of a lattice sample, tracing a ray only the first time it is asked for.
 float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
-    const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
+    const size_t idx = index(q);
     float& s = scratch.mSample[idx];
     if (scratch.mStamp[idx] == scratch.mGeneration) {
         ++counts.cacheHits;
@@ -137,7 +154,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     const int s0 = 2 << n;
     Corner* kept = nullptr;
     if (self.mSettings.reuseCorners && firstLevel && q.a % s0 == 0 && q.b % s0 == 0) {
-        kept = scratch.reusableCorner(light, p, q.a / s0, q.b / s0);
+        kept = scratch.reusableCorner(light, {pa, pb}, q.a / s0, q.b / s0);
     }
     Corner ray;
     if (kept && kept->answers(origin)) {
@@ -182,7 +199,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
 // The index of traced sample q, its clearance measured now if it was left for later
 // (sample()'s lazy rays): the same march, the same values, not counted as another ray.
 size_t ContourIntegrator::Lattice::settle(LatticePoint q) const {
-    const size_t idx = static_cast<size_t>(q.b) * (N + 1) + q.a;
+    const size_t idx = index(q);
     if (scratch.mPending[idx] && scratch.mStamp[idx] == scratch.mGeneration) {
         scratch.mPending[idx] = 0;
         const Vec3 target = pointOf(q);
@@ -264,14 +281,14 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     for (const Vec3& c : light.polygon()) above |= glm::dot(c - r.point, r.normal) > 0.0;
     if (!above) return est;
 
-    const int p = std::max(1, mSettings.grid);
+    const FirstLevelGrid grid = firstLevelGrid(light, mSettings);
     int n = std::max(0, mSettings.steps);
-    while (n > 0 && (p << (n + 1)) > kMaxLatticeUnits) --n;
-    Lattice lat(*this, r, light, query, p, n);
+    while (n > 0 && (std::max(grid.a, grid.b) << (n + 1)) > kMaxLatticeUnits) --n;
+    Lattice lat(*this, r, light, query, grid, n);
     if (mSettings.coverage && lat.wholeLight()) {
         // One ray whose disc covers the light decides it: all visible or all hidden.
-        const bool vis = sc.mSample[static_cast<size_t>(lat.N / 2) * (lat.N + 1) + lat.N / 2] == kVisible;
-        est.pattern.assign(static_cast<size_t>(p + 1) * (p + 1), vis ? 1 : 0);
+        const bool vis = sc.mSample[lat.index({lat.Na / 2, lat.Nb / 2})] == kVisible;
+        est.pattern.assign(grid.corners(), vis ? 1 : 0);
         est.g = lat.g / (2.0 * kPi);
         est.dg = lat.dg / (2.0 * kPi);
         est.formFactor = glm::dot(est.g, r.normal);
@@ -326,7 +343,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             lat.certifyNext = false;
             if ((vis ? 1 : 0) != lat.predicted(q) && repasses < kMaxRepasses) {
                 ++repasses;
-                sc.mMarked.push_back(static_cast<uint32_t>(static_cast<size_t>(q.b) * (lat.N + 1) + q.a));
+                sc.mMarked.push_back(static_cast<uint32_t>(lat.index(q)));
                 again = true;
                 break;
             }
@@ -344,7 +361,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             if (coverageRays >= mSettings.maxCoverageRays && !escalated && level < n) {
                 double area = 0.0;  // what stays unproven (an upper bound: cells may be stale)
                 for (const Uncovered& u : sc.mUncovered) area += u.size * u.size;
-                if (area > kEscalateUnproven * double(lat.N) * lat.N) {
+                if (area > kEscalateUnproven * double(lat.Na) * lat.Nb) {
                     escalated = true;
                     ++level;
                     coverageRays = 0;
@@ -352,16 +369,16 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 }
             }
             if (mSettings.errorBound) lat.bound += lat.finalUncoveredFormFactor();
-            if (unsettled) lat.bound = std::max(lat.bound, lat.squareFormFactor(0, 0, lat.N));
+            if (unsettled) lat.bound = std::max(lat.bound, lat.wholeFormFactor());
             break;
         }
     }
-    est.pattern.resize(static_cast<size_t>(p + 1) * (p + 1));
+    est.pattern.resize(grid.corners());
     const int s0 = 2 << n;
-    for (int j = 0; j <= p; ++j)
-        for (int i = 0; i <= p; ++i) {
-            const size_t idx = static_cast<size_t>(j * s0) * (lat.N + 1) + i * s0;
-            est.pattern[static_cast<size_t>(j) * (p + 1) + i] = sc.mSample[idx] == kVisible;
+    for (int j = 0; j <= grid.b; ++j)
+        for (int i = 0; i <= grid.a; ++i) {
+            const size_t idx = lat.index({i * s0, j * s0});
+            est.pattern[static_cast<size_t>(j) * (grid.a + 1) + i] = sc.mSample[idx] == kVisible;
         }
     est.g = lat.g / (2.0 * kPi);
     est.dg = lat.dg / (2.0 * kPi);
@@ -373,35 +390,35 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     return est;
 }
 
-Corner* ContourIntegrator::Scratch::reusableCorner(const RectLight& light, int grid,
-                                                             int i, int j) {
-    const size_t count = static_cast<size_t>(grid + 1) * (grid + 1);
+Corner* ContourIntegrator::Scratch::reusableCorner(const RectLight& light, FirstLevelGrid grid,
+                                                   int i, int j) {
+    const size_t count = grid.corners();
     if (mCorners.size() != count || mCornerGrid != grid || mCornerLight.corner != light.corner ||
         mCornerLight.edgeU != light.edgeU || mCornerLight.edgeV != light.edgeV) {
         mCorners.assign(count, Corner{});
         mCornerGrid = grid;
         mCornerLight = light;
     }
-    return &mCorners[static_cast<size_t>(j) * (grid + 1) + i];
+    return &mCorners[static_cast<size_t>(j) * (grid.a + 1) + i];
 }
 
 std::vector<uint8_t> ContourIntegrator::pattern(const Receiver& r, const RectLight& light,
                                                 Occluder::Query& query, AciCounts& counts) {
-    const int p = std::max(1, mSettings.grid);
-    std::vector<uint8_t> out(static_cast<size_t>(p + 1) * (p + 1), 0);
+    const FirstLevelGrid grid = firstLevelGrid(light, mSettings);
+    std::vector<uint8_t> out(grid.corners(), 0);
     if (!facesLight(light, r.point)) return out;
     const Vec3 origin = r.point + mSettings.rayOffset * r.normal;
-    for (int j = 0; j <= p; ++j)
-        for (int i = 0; i <= p; ++i) {
-            const Vec3 target = light.point(double(i) / p, double(j) / p);
+    for (int j = 0; j <= grid.b; ++j)
+        for (int i = 0; i <= grid.a; ++i) {
+            const Vec3 target = light.point(double(i) / grid.a, double(j) / grid.b);
             if (glm::dot(target - r.point, r.normal) <= 0.0) continue;
-            uint8_t& o = out[static_cast<size_t>(j) * (p + 1) + i];
+            uint8_t& o = out[static_cast<size_t>(j) * (grid.a + 1) + i];
             if (!mSettings.reuseCorners) {
                 ++counts.firstLevelRays;
                 o = !query.occluded(origin, target);
                 continue;
             }
-            Corner* kept = mScratch->reusableCorner(light, p, i, j);
+            Corner* kept = mScratch->reusableCorner(light, grid, i, j);
             if (kept->answers(origin)) {
                 ++counts.reusedRays;
             } else {

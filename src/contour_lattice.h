@@ -130,10 +130,10 @@ constexpr int kClipDisc = 1001;     // Vertex::clip: a disc light's circle
 using namespace aci;  // NOLINT(google-build-using-namespace): a private header of five files
 
 struct ContourIntegrator::Scratch {
-    std::vector<Corner> mCorners;  // (p+1)^2 for mCornerGrid and mCornerLight; empty: none
-    int mCornerGrid = 0;
+    std::vector<Corner> mCorners;  // (pa+1) x (pb+1) for mCornerGrid and mCornerLight; empty: none
+    FirstLevelGrid mCornerGrid;
     RectLight mCornerLight;
-    Corner* reusableCorner(const RectLight& light, int grid, int i, int j);
+    Corner* reusableCorner(const RectLight& light, FirstLevelGrid grid, int i, int j);
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
@@ -154,7 +154,7 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     std::vector<uint32_t> mBlockers;   // the obstacles that blocked rays this time (repeats)
     uint32_t mGeneration = 0;
-    // Coverage's spatial index: one bucket per first-level square of the base grid (p x p),
+    // Coverage's spatial index: one bucket per first-level square of the base grid (pa x pb),
     // each listing, in index order, the discs (mTracedDiscs), contour segments (mSegs) and
     // leaves (mLeaves) that may matter for a square inside it. Lists are supersets of what the
     // scans keep, so answers are those of a scan of everything.
@@ -163,20 +163,25 @@ struct ContourIntegrator::Scratch {
 
 // One evaluation at one receiver point: the sample lattice and the running contour sums.
 //
-// The lattice has N = p * 2^(n+1) units per light edge, so that a first-level square has side
-// 2^(n+1) units and a dichotomy of n steps ends on an interval of 2 units: its midpoint, the
-// contour vertex, and every centre and semi-diagonal point are lattice points too. A square of
-// side 2^(k+1) gets k dichotomy steps; refinement and restarts both lower k by one.
+// The lattice has Na = pa * 2^(n+1) units along the light's first edge (edgeU) and
+// Nb = pb * 2^(n+1) along its second, for a first level of pa x pb squares (firstLevelGrid), so
+// that a first-level square has side 2^(n+1) units and a dichotomy of n steps ends on an
+// interval of 2 units: its midpoint, the contour vertex, and every centre and semi-diagonal
+// point are lattice points too. A square of side 2^(k+1) gets k dichotomy steps; refinement and
+// restarts both lower k by one. Squares are squares of lattice units; a unit's world length
+// differs along the two edges only as much as the light's aspect differs from pa / pb.
 struct ContourIntegrator::Lattice {
     ContourIntegrator& self;
     Scratch& scratch;
     const Receiver& rec;
     const RectLight& light;
     Occluder::Query& query;
-    int p, n, N;
+    int pa, pb, n;  // first-level squares along each edge; dichotomy steps
+    int Na, Nb;     // lattice units along each edge
     Vec3 origin;
     Vec3 lightNormal;
-    double epsWorld;  // world length of the final dichotomy interval (the strip width)
+    double epsWorld;  // world length of the final dichotomy interval (the strip width; the
+                      // two edges' average)
     double want;      // coverage: the radius that covers the whole light from any of its points
     double wantSquare;  // coverage: the radius that covers a corner's first-level squares
     bool wantWhole = false;  // coverage: the next ray asks for `want` (wholeLight's)
@@ -200,19 +205,20 @@ struct ContourIntegrator::Lattice {
 
     // ----- Samples: one ray per lattice point and evaluation (contour_integrator.cpp) -----
     Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l, Occluder::Query& q,
-            int grid, int steps);
+            FirstLevelGrid grid, int steps);
     float& sample(LatticePoint q, bool firstLevel);
     size_t settle(LatticePoint q) const;
 
-    Vec3 pointOf(LatticePoint q) const {
-        return light.point(double(q.a) / N, double(q.b) / N);
-    }
+    Vec3 pointOf(LatticePoint q) const { return at(q.a, q.b); }
+    // The light point at lattice coordinates (a, b), which need not be integers.
+    Vec3 at(double a, double b) const { return light.point(a / Na, b / Nb); }
+    size_t index(LatticePoint q) const { return static_cast<size_t>(q.b) * (Na + 1) + q.a; }
     bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
     float peek(LatticePoint q) const {
-        return scratch.mSample[static_cast<size_t>(q.b) * (N + 1) + q.a];
+        return scratch.mSample[index(q)];
     }
     bool traced(LatticePoint q) const {
-        return scratch.mStamp[static_cast<size_t>(q.b) * (N + 1) + q.a] == scratch.mGeneration;
+        return scratch.mStamp[index(q)] == scratch.mGeneration;
     }
     // The form factor of the contour edge a -> b (Lambert's term, seen from the receiver).
     double edgeF(const Vec3& a, const Vec3& b) const {
@@ -298,6 +304,7 @@ struct ContourIntegrator::Lattice {
     // ----- Coverage and the error bound (contour_coverage.cpp) -----
     bool wholeLight();
     double squareFormFactor(int x0, int y0, int s) const;
+    double wholeFormFactor() const;
     bool cellInDisc(double a0, double b0, double size, const Vec3& centre) const;
     bool mayHold(const Disc& d, double dist, double reach) const;
     bool cellOutside(double a0, double b0, double size) const;

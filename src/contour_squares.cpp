@@ -37,11 +37,11 @@ bool ContourIntegrator::Lattice::pass(int r) {
     for (auto& b : scratch.mLeafBuckets) b.clear();
     const int k = n - r;
     const int s = 2 << k;
-    const int squares = p << r;
-    for (int j = 0; j <= squares; ++j)
-        for (int i = 0; i <= squares; ++i) visible({i * s, j * s}, true);
-    for (int j = 0; j < squares; ++j)
-        for (int i = 0; i < squares; ++i)
+    const int squaresA = pa << r, squaresB = pb << r;
+    for (int j = 0; j <= squaresB; ++j)
+        for (int i = 0; i <= squaresA; ++i) visible({i * s, j * s}, true);
+    for (int j = 0; j < squaresB; ++j)
+        for (int i = 0; i < squaresA; ++i)
             if (!square(i * s, j * s, k, -1.0, 0)) return false;
     return true;
 }
@@ -55,7 +55,7 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
     bool v[4];
     for (int i = 0; i < 4; ++i) v[i] = visible(c[i]);
     const int nVisible = v[0] + v[1] + v[2] + v[3];
-    const bool onBorder[4] = {y0 == 0, x0 + s == N, y0 + s == N, x0 == 0};
+    const bool onBorder[4] = {y0 == 0, x0 + s == Na, y0 + s == Nb, x0 == 0};
 
     if (nVisible == 0 || nVisible == 4) {
         // With coverage: a coverage sample inside that disagrees splits the square (a
@@ -289,7 +289,7 @@ bool ContourIntegrator::Lattice::split(int x0, int y0, int k, double thr, int de
             // (markedInside), which bounds the work of a cascade of inconsistencies.
             if (!self.mSettings.coverage || passLevel == 0) return false;
             const LatticePoint m = midpoint(c[i], c[j]);
-            const uint32_t idx = static_cast<uint32_t>(static_cast<size_t>(m.b) * (N + 1) + m.a);
+            const uint32_t idx = static_cast<uint32_t>(index(m));
             if (std::find(scratch.mMarked.begin(), scratch.mMarked.end(), idx) == scratch.mMarked.end()) {
                 scratch.mMarked.push_back(idx);
                 remark = true;

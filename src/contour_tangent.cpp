@@ -234,15 +234,15 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     // contour, so such a piece is checked and refined instead.
     const double height = glm::length(glm::cross(arc.k - a.c, chord)) / len;
     if (height > len) return false;
-    const double side = double(s) / N;
+    const double sideU = double(s) / Na, sideV = double(s) / Nb;
     const Vec2 kuv = light.coordinates(arc.k);
     const double ku = kuv.x, kv = kuv.y;
-    const double u0 = double(x0) / N, v0 = double(y0) / N;
+    const double u0 = double(x0) / Na, v0 = double(y0) / Nb;
     // K within the square (a quarter side of margin), and never beyond the light's border: an arc bulging out
     // of the light would count area the light does not have.
     constexpr double kMargin = 0.25;
-    if (ku < u0 - kMargin * side || ku > u0 + (1 + kMargin) * side ||
-        kv < v0 - kMargin * side || kv > v0 + (1 + kMargin) * side)
+    if (ku < u0 - kMargin * sideU || ku > u0 + (1 + kMargin) * sideU ||
+        kv < v0 - kMargin * sideV || kv > v0 + (1 + kMargin) * sideV)
         return false;
     if (ku < 0.0 || ku > 1.0 || kv < 0.0 || kv > 1.0) return false;
     const double triangle = std::abs(edgeF(a.c, arc.k) + edgeF(arc.k, b.c) + edgeF(b.c, a.c));
@@ -255,8 +255,8 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     const Vec3 target = m + 0.75 * (arc.k - m);
     const Vec2 tuv = light.coordinates(target);
     const double tu = tuv.x, tv = tuv.y;
-    const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * N)), x0, x0 + s),
-                         std::clamp(static_cast<int>(std::lround(tv * N)), y0, y0 + s)};
+    const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * Na)), x0, x0 + s),
+                         std::clamp(static_cast<int>(std::lround(tv * Nb)), y0, y0 + s)};
     if (sample(q, false) == kBelowHorizon || untrustedTangent(q)) return false;
     double lambda = newtonAlong(q, m, arc.k - m);
     if (!std::isfinite(lambda)) return false;
@@ -268,8 +268,8 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
         const Vec3 land = m + std::clamp(lambda, 0.0, 1.0) * (arc.k - m);
         const Vec2 luv = light.coordinates(land);
         const double lu = luv.x, lv = luv.y;
-        const LatticePoint q2{std::clamp(static_cast<int>(std::lround(lu * N)), x0, x0 + s),
-                              std::clamp(static_cast<int>(std::lround(lv * N)), y0, y0 + s)};
+        const LatticePoint q2{std::clamp(static_cast<int>(std::lround(lu * Na)), x0, x0 + s),
+                              std::clamp(static_cast<int>(std::lround(lv * Nb)), y0, y0 + s)};
         if (std::abs(q2.a - q.a) + std::abs(q2.b - q.b) > 1 &&
             sample(q2, false) != kBelowHorizon) {
             const double again = newtonAlong(q2, m, arc.k - m);
@@ -331,8 +331,8 @@ bool ContourIntegrator::Lattice::arcHolds(const Vertex& a, const Vertex& b, cons
         const bool wantVisible = side == 0;
         const Vec3 at = mid + (wantVisible ? 1.0 : -1.0) * kArcProbe * unit * left;
         const Vec2 uv = light.coordinates(at);
-        const LatticePoint q{std::clamp(static_cast<int>(std::lround(uv.x * N)), x0, x0 + s),
-                             std::clamp(static_cast<int>(std::lround(uv.y * N)), y0, y0 + s)};
+        const LatticePoint q{std::clamp(static_cast<int>(std::lround(uv.x * Na)), x0, x0 + s),
+                             std::clamp(static_cast<int>(std::lround(uv.y * Nb)), y0, y0 + s)};
         // Still on the intended side after rounding, by half a unit at least.
         const double off = glm::dot(pointOf(q) - mid, left) * (wantVisible ? 1.0 : -1.0);
         if (off < 0.5 * unit) continue;

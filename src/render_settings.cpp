@@ -28,6 +28,7 @@ void applyAciMode(AciSettings& s, AciMode mode) {
     const bool beyondPaper = mode != AciMode::Paper;
     s.curvedContour = beyondPaper;
     s.midlineCheck = beyondPaper;
+    s.aspectGrid = mode == AciMode::Tangent;
     s.distanceGuided = mode == AciMode::Tangent;
     s.tangentContour = mode == AciMode::Tangent;
     s.coverage = mode == AciMode::Tangent;
@@ -40,7 +41,8 @@ AciMode aciModeOf(const AciSettings& s) {
         applyAciMode(t, m);
         if (t.curvedContour == s.curvedContour && t.midlineCheck == s.midlineCheck &&
             t.distanceGuided == s.distanceGuided && t.tangentContour == s.tangentContour &&
-            t.guidedProbes == s.guidedProbes && t.coverage == s.coverage)
+            t.guidedProbes == s.guidedProbes && t.coverage == s.coverage &&
+            t.aspectGrid == s.aspectGrid)
             return m;
     }
     return AciMode::Tangent;

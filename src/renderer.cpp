@@ -866,8 +866,11 @@ private:
         Sample a = exact(x0);
         int x = x0;
         while (x < x1) {
-            size_t side = size_t(a.grid) + 1;
-            bool usable = a.pattern.size() == side * side && !uniformPattern(a.pattern);
+            AciSettings traced = mSettings.aci;
+            traced.grid = a.grid;
+            // (A polygon light's fan joins its triangles' patterns: not one grid's, not used.)
+            bool usable = a.pattern.size() == firstLevelGrid(mLight, traced).corners() &&
+                          !uniformPattern(a.pattern);
             // With a uniform pattern (all visible, all hidden) ACI spends only the first-level
             // rays, as a pattern would, and its answer is exact: no reason to interpolate.
             if (!mSettings.coherence || !usable) {

@@ -31,7 +31,18 @@
 
 namespace penumbra {
 
-
+/// The first level ACI dices a light into: `a` squares along its first edge (edgeU), `b` along
+/// its second. AciSettings::grid along the shorter edge; with AciSettings::aspectGrid the longer
+/// edge gets that many times its length over the shorter's, rounded (at most 8 times), so that
+/// the squares are about square and contour vertices are located as finely along one edge as
+/// along the other.
+struct FirstLevelGrid {
+    int a = 0, b = 0;
+    size_t corners() const { return static_cast<size_t>(a + 1) * (b + 1); }
+    bool operator==(const FirstLevelGrid& o) const { return a == o.a && b == o.b; }
+    bool operator!=(const FirstLevelGrid& o) const { return !(*this == o); }
+};
+FirstLevelGrid firstLevelGrid(const RectLight& light, const AciSettings& settings);
 
 class ContourIntegrator {
 public:
@@ -41,7 +52,8 @@ public:
 
     Estimate evaluate(const Receiver& r, const RectLight& light, Occluder::Query& query);
 
-    /// Only the first-level pattern (the (p+1)^2 corner rays), for shadow-pattern coherence.
+    /// Only the first-level pattern (the firstLevelGrid().corners() corner rays, row by row
+    /// along edgeU), for shadow-pattern coherence.
     /// Adds the rays to `counts` (with reuseCorners, some corners may be answered by earlier
     /// rays: counts.reusedRays).
     std::vector<uint8_t> pattern(const Receiver& r, const RectLight& light, Occluder::Query& query,

@@ -74,6 +74,11 @@ struct AciSettings {
     /// midline rather than on a random diagonal, which meets a contour near a side close to
     /// one end of its chord and so misses its bulge.
     bool midlineCheck = true;
+    /// Beyond the paper (tangent mode): a light longer than wide gets a first level of about
+    /// square squares, `grid` along its shorter edge and proportionally more along the longer
+    /// (firstLevelGrid in contour_integrator.h), so that contour vertices are located as finely
+    /// along both edges. Off: `grid` x `grid` squares, as in the paper, whatever the shape.
+    bool aspectGrid = true;
     /// Beyond the paper (tangent mode): certified coverage. Every shadow ray also returns a
     /// Certificate (occluder.h): a disc on the light within which every point has its answer.
     /// Rays go where no disc proves the light and no located contour piece is near, and a

@@ -18,7 +18,7 @@ struct RenderStats {
     int height = 0;
     int threads = 0;
     int lights = 0;
-    int aciGrid = 0;   ///< base first-level grid p (p x p squares)
+    int aciGrid = 0;   ///< base first-level grid p (squares along a light's shorter edge)
     int aciSteps = 0;  ///< dichotomy steps n
     std::string aciMode;  ///< the estimator's variant: "paper", "arcs" or "tangent" (aciModeName)
     double seconds = 0.0;  ///< wall time of the render (not merged: set once)

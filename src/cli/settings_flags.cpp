@@ -30,7 +30,7 @@ const std::map<std::string, FlagInfo>& flagTable() {
         {"width", {Kind::Int, false, "Image width in pixels (default: the camera's)"}},
         {"height", {Kind::Int, false, "Image height in pixels (default: the camera's)"}},
         {"threads", {Kind::Int, false, "Worker threads (default: every hardware thread)"}},
-        {"aci_grid", {Kind::Int, true, "First-level grid p: p x p squares on the light (1-32)"}},
+        {"aci_grid", {Kind::Int, true, "First-level grid p: squares along the light's shorter edge, p x p on a square light; in tangent mode a longer edge gets proportionally more, up to 8p (1-32)"}},
         {"aci_steps", {Kind::Int, true, "Dichotomy steps n along a crossed side (1-12)"}},
         {"aci_mode",
          {Kind::Text, true,
