@@ -185,7 +185,9 @@ void ContourIntegrator::Lattice::gapTo(Uncovered& u, const Disc& d, double dist)
 
 // How far from proven ground a cell may reach: a cell of side s is done when every centre of
 // its cells of kCoverageCell units is near proven ground, i.e. its own centre's gap plus the
-// distance to the farthest of them is small; coverage's next ray goes to the largest.
+// distance to the farthest of them ((s - kCoverageCell) x cellReach, along the cell's longer
+// diagonal: exact for a parallelogram light and unequal units) is small; coverage's next ray
+// goes to the largest.
 double ContourIntegrator::Lattice::coverageKey(const Uncovered& u) const {
     return u.gap + (u.size - kCoverageCell) * cellReach;
 }

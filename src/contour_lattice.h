@@ -105,7 +105,6 @@ constexpr double kNearReceiver = 2.0;
 // A sixteenth since 2026-11-29 (fifth session): a check that passed a quarter left a level-set
 // torus' shadow 3.5% short on random seed 6, where its error concentrated (docs/BENCHMARKS.md).
 constexpr double kCoverageThreshold = 0.0625;
-constexpr double kHalfSqrt2 = 0.7071067811865476;
 
 struct LatticePoint {
     int a, b;
