@@ -1138,6 +1138,11 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     stats.lights = int(scene.lights.size());
     stats.aciGrid = settings.aci.grid;
     stats.aciSteps = settings.aci.steps;
+    if (!isMonteCarlo(settings.method))
+        for (const RectLight& light : scene.lights) {
+            const FirstLevelGrid g = firstLevelGrid(light, settings.aci);
+            stats.aciFirstLevel.emplace_back(g.a, g.b);
+        }
     stats.aciMode = aciModeName(aciModeOf(settings.aci));
     stats.seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

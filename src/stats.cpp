@@ -46,6 +46,8 @@ std::string RenderStats::toJson() const {
     j["lights"] = lights;
     j["aci_grid"] = aciGrid;
     j["aci_steps"] = aciSteps;
+    j["aci_first_level"] = nlohmann::ordered_json::array();
+    for (const auto& [a, b] : aciFirstLevel) j["aci_first_level"].push_back({a, b});
     j["aci_mode"] = aciMode;
     j["seconds"] = seconds;
     j["viewing_rays"] = viewingRays;

@@ -395,6 +395,47 @@ TEST_CASE("one and two threads give the same pixels, bit for bit", "[renderer]")
     }
 }
 
+TEST_CASE("a long light: its first level in the statistics, patterns of its shape, one or two threads",
+          "[renderer]") {
+    // The square light stretched to 2.4 x 0.6 (4:1): tangent mode dices it 8 x 2.
+    Scene scene = clutteredScene(40);
+    RectLight& light = scene.lights.at(0);
+    light.corner = Vec3(-0.3, -1.2, 2.0);
+    light.edgeU = Vec3(0.0, 2.4, 0.0);
+    light.edgeV = Vec3(0.6, 0.0, 0.0);
+    const RenderResult one = render(scene, settingsFor(Method::Aci, 1));
+    const RenderResult two = render(scene, settingsFor(Method::Aci, 2));
+    REQUIRE(one.stats.aciFirstLevel.size() == 1);
+    CHECK(one.stats.aciFirstLevel[0] == std::make_pair(8, 2));
+    CHECK(one.color.data == two.color.data);
+    CHECK(one.stats.shadowRays == two.stats.shadowRays);
+    const nlohmann::json j = nlohmann::json::parse(one.stats.toJson());
+    CHECK(j["aci_first_level"] == nlohmann::json::array({nlohmann::json::array({8, 2})}));
+    // The paper's mode keeps p x p; Monte Carlo reports no first level.
+    RenderSettings paper = settingsFor(Method::Aci);
+    applyAciMode(paper.aci, AciMode::Paper);
+    CHECK(render(scene, paper).stats.aciFirstLevel[0] == std::make_pair(2, 2));
+    RenderSettings mc = settingsFor(Method::McSolidAngle);
+    mc.mc.samples = 4;
+    CHECK(render(scene, mc).stats.aciFirstLevel.empty());
+    // Without coverage the pipeline interpolates along runs of equal shadow patterns (Vedel's
+    // section 5): here the 27 corners of the 8 x 2 first level. Within the first test case's
+    // tolerance of per-pixel ACI, and the same on two threads.
+    RenderSettings patterns = settingsFor(Method::Aci, 1);
+    patterns.aci.coverage = false;
+    const RenderResult p1 = render(scene, patterns);
+    patterns.threads = 2;
+    const RenderResult p2 = render(scene, patterns);
+    CHECK(p1.stats.aciFirstLevel[0] == std::make_pair(8, 2));
+    CHECK(p1.stats.patternEvaluations > 0);
+    CHECK(p1.stats.interpolatedPixels > 0);
+    CHECK(p1.color.data == p2.color.data);
+    patterns.method = Method::AciPixel;
+    const Diff d = difference(p1.color, render(scene, patterns).color);
+    INFO("mean " << d.mean8 << ", max " << d.max8);
+    CHECK(d.mean8 < 0.1);
+}
+
 TEST_CASE("a fully lit region's mean equals the closed form; the sphere is shaded by its normal",
           "[renderer]") {
     const int size = 48;

@@ -8,6 +8,8 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace penumbra {
 
@@ -20,6 +22,10 @@ struct RenderStats {
     int lights = 0;
     int aciGrid = 0;   ///< base first-level grid p (squares along a light's shorter edge)
     int aciSteps = 0;  ///< dichotomy steps n
+    /// Per light (the scene's order), the first level ACI dices it into: squares along its
+    /// edge_u and edge_v (firstLevelGrid: aciGrid along the shorter edge, more along a longer
+    /// one in tangent mode). Empty for the Monte Carlo methods.
+    std::vector<std::pair<int, int>> aciFirstLevel;
     std::string aciMode;  ///< the estimator's variant: "paper", "arcs" or "tangent" (aciModeName)
     double seconds = 0.0;  ///< wall time of the render (not merged: set once)
     /// The scene's obstacle build report (BuildReport::toJson(): voxels, bytes, seconds per
