@@ -44,13 +44,6 @@ bool ContourIntegrator::Lattice::wholeLight() {
     return true;
 }
 
-// Form factor of the light's part inside the lattice square (x0, y0, s), for bounds.
-double ContourIntegrator::Lattice::squareFormFactor(int x0, int y0, int s) const {
-    const Vec3 p0 = pointOf({x0, y0}), p1 = pointOf({x0 + s, y0});
-    const Vec3 p2 = pointOf({x0 + s, y0 + s}), p3 = pointOf({x0, y0 + s});
-    return std::abs(edgeF(p0, p1) + edgeF(p1, p2) + edgeF(p2, p3) + edgeF(p3, p0));
-}
-
 // Form factor of the light's whole frame, for bounds.
 double ContourIntegrator::Lattice::wholeFormFactor() const {
     const Vec3 p0 = pointOf({0, 0}), p1 = pointOf({Na, 0}), p2 = pointOf({Na, Nb}), p3 = pointOf({0, Nb});

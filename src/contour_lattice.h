@@ -18,6 +18,7 @@
 /// Included only by those files (it brings the names of namespace `aci` into `penumbra`).
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -212,6 +213,12 @@ struct ContourIntegrator::Lattice {
     // The light point at lattice coordinates (a, b), which need not be integers.
     Vec3 at(double a, double b) const { return light.point(a / Na, b / Nb); }
     size_t index(LatticePoint q) const { return static_cast<size_t>(q.b) * (Na + 1) + q.a; }
+    // The lattice point nearest to light point p, clamped into the square (x0, y0, side s).
+    LatticePoint nearestInSquare(const Vec3& p, int x0, int y0, int s) const {
+        const Vec2 uv = light.coordinates(p);
+        return {std::clamp(static_cast<int>(std::lround(uv.x * Na)), x0, x0 + s),
+                std::clamp(static_cast<int>(std::lround(uv.y * Nb)), y0, y0 + s)};
+    }
     bool visible(LatticePoint q, bool firstLevel = false) { return sample(q, firstLevel) == kVisible; }
     float peek(LatticePoint q) const {
         return scratch.mSample[index(q)];
@@ -302,7 +309,6 @@ struct ContourIntegrator::Lattice {
 
     // ----- Coverage and the error bound (contour_coverage.cpp) -----
     bool wholeLight();
-    double squareFormFactor(int x0, int y0, int s) const;
     double wholeFormFactor() const;
     bool cellInDisc(double a0, double b0, double size, const Vec3& centre) const;
     bool mayHold(const Disc& d, double dist, double reach) const;

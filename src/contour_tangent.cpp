@@ -252,11 +252,7 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     }
     // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
     const Vec3 m = 0.5 * (a.c + b.c);
-    const Vec3 target = m + 0.75 * (arc.k - m);
-    const Vec2 tuv = light.coordinates(target);
-    const double tu = tuv.x, tv = tuv.y;
-    const LatticePoint q{std::clamp(static_cast<int>(std::lround(tu * Na)), x0, x0 + s),
-                         std::clamp(static_cast<int>(std::lround(tv * Nb)), y0, y0 + s)};
+    const LatticePoint q = nearestInSquare(m + 0.75 * (arc.k - m), x0, y0, s);
     if (sample(q, false) == kBelowHorizon || untrustedTangent(q)) return false;
     double lambda = newtonAlong(q, m, arc.k - m);
     if (!std::isfinite(lambda)) return false;
@@ -265,11 +261,8 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     // unit away, a second ray at the landing point places it again from there.
     LatticePoint shoulders[2] = {q, q};
     {
-        const Vec3 land = m + std::clamp(lambda, 0.0, 1.0) * (arc.k - m);
-        const Vec2 luv = light.coordinates(land);
-        const double lu = luv.x, lv = luv.y;
-        const LatticePoint q2{std::clamp(static_cast<int>(std::lround(lu * Na)), x0, x0 + s),
-                              std::clamp(static_cast<int>(std::lround(lv * Nb)), y0, y0 + s)};
+        const LatticePoint q2 =
+            nearestInSquare(m + std::clamp(lambda, 0.0, 1.0) * (arc.k - m), x0, y0, s);
         if (std::abs(q2.a - q.a) + std::abs(q2.b - q.b) > 1 &&
             sample(q2, false) != kBelowHorizon) {
             const double again = newtonAlong(q2, m, arc.k - m);
@@ -329,10 +322,8 @@ bool ContourIntegrator::Lattice::arcHolds(const Vertex& a, const Vertex& b, cons
     constexpr double kArcProbe = 1.5;
     for (int side = 0; side < 2; ++side) {
         const bool wantVisible = side == 0;
-        const Vec3 at = mid + (wantVisible ? 1.0 : -1.0) * kArcProbe * unit * left;
-        const Vec2 uv = light.coordinates(at);
-        const LatticePoint q{std::clamp(static_cast<int>(std::lround(uv.x * Na)), x0, x0 + s),
-                             std::clamp(static_cast<int>(std::lround(uv.y * Nb)), y0, y0 + s)};
+        const LatticePoint q =
+            nearestInSquare(mid + (wantVisible ? 1.0 : -1.0) * kArcProbe * unit * left, x0, y0, s);
         // Still on the intended side after rounding, by half a unit at least.
         const double off = glm::dot(pointOf(q) - mid, left) * (wantVisible ? 1.0 : -1.0);
         if (off < 0.5 * unit) continue;
