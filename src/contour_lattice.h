@@ -97,6 +97,11 @@ constexpr double kOwnSurfaceOffsets = 8.0;
 // 6-9 8-bit units off, the tangents of surface a few tens of voxels from the receiver; at 4 the
 // largest is 0.35, for 10% more rays there and under 1% on random scenes.)
 constexpr double kMagnifiedVoxel = 4.0;
+// fieldRoot: secant steps on the level set's own field (each a few dozen samples of the grid),
+// and how far (in voxels, along the ray) from the previous closest approach the new one is
+// looked for.
+constexpr int kFieldRootSteps = 3;
+constexpr double kFieldRootWindow = 3.0;
 // A contour square wider than this many times its distance from the receiver point is split
 // before its contour is built (nearReceiver).
 constexpr double kNearReceiver = 2.0;
@@ -297,6 +302,8 @@ struct ContourIntegrator::Lattice {
     bool staleOf(LatticePoint q) const;
     int obstacleOf(LatticePoint q) const;
     double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
+    double fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir, double xq, double guess,
+                     double lo, double hi, bool visibleLo);
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
     bool untrustedTangent(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;

@@ -1691,6 +1691,62 @@ bool Occluder::Query::occludedCertified(const Vec3& from, const Vec3& to, double
     return blocked;
 }
 
+double Occluder::Query::localMinimum(size_t i, const Vec3& from, const Vec3& to, double t,
+                                     double halfWindow, double* at) {
+    constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+    if (i >= mImpl->levelSets.size() || !mImpl->levelSets[i]) return kNan;
+    LevelSetSlot& slot = *mImpl->levelSets[i];
+    const double voxel = slot.grid->voxelSize()[0];
+    const double band = 0.98 * double(slot.grid->background());
+    const openvdb::Vec3d f0 = slot.grid->worldToIndex(openvdb::Vec3d(from.x, from.y, from.z));
+    const openvdb::Vec3d fv = slot.grid->worldToIndex(openvdb::Vec3d(to.x, to.y, to.z)) - f0;
+    // Beyond the band a value only says "at least the band away".
+    auto phiAt = [&](double s) {
+        const double v = sampleTrilinear(slot.accessor, f0 + s * fv);
+        return std::abs(v) < band ? v : std::copysign(band, v);
+    };
+    const double length = glm::length(to - from);
+    if (!(length > 0.0) || !(halfWindow > 0.0)) return kNan;
+    const double step = 0.5 * voxel / length;
+    const int n = std::max(2, static_cast<int>(std::ceil(2.0 * halfWindow / step)));
+    const double dt = 2.0 * halfWindow / n;
+    double best = std::numeric_limits<double>::infinity(), t0 = t - halfWindow;
+    int kBest = -1;
+    // Samples every half voxel over the window; where the smallest lies at an end, the window
+    // moves on that way (twice at most).
+    for (int shift = 0; shift < 3; ++shift) {
+        best = std::numeric_limits<double>::infinity();
+        kBest = -1;
+        for (int k = 0; k <= n; ++k) {
+            const double phi = phiAt(t0 + k * dt);
+            if (phi < best) best = phi, kBest = k;
+        }
+        if (kBest > 0 && kBest < n) break;
+        t0 += (kBest == 0 ? -1.0 : 1.0) * (n - 1) * dt;
+    }
+    if (kBest <= 0 || kBest >= n || !(best < 0.9 * band)) return kNan;
+    // Golden-section search between the smallest sample's neighbours.
+    const double g = 0.5 * (std::sqrt(5.0) - 1.0);
+    double a = t0 + (kBest - 1) * dt, b = t0 + (kBest + 1) * dt;
+    double x1 = b - g * (b - a), x2 = a + g * (b - a);
+    double p1 = phiAt(x1), p2 = phiAt(x2);
+    const double tol = 0.02 * voxel / length;
+    while (b - a > tol) {
+        if (p1 < p2) {
+            b = x2, x2 = x1, p2 = p1, x1 = b - g * (b - a), p1 = phiAt(x1);
+        } else {
+            a = x1, x1 = x2, p1 = p2, x2 = a + g * (b - a), p2 = phiAt(x2);
+        }
+    }
+    double tb = t0 + kBest * dt;
+    if (std::min(p1, p2) < best) {
+        best = std::min(p1, p2);
+        tb = p1 < p2 ? x1 : x2;
+    }
+    if (at) *at = tb;
+    return best;
+}
+
 void Occluder::Query::certify(const Vec3& from, const Vec3& to, bool blocked, double tHit,
                               double want, Certificate& out) {
     out = Certificate{};

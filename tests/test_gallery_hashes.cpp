@@ -131,18 +131,23 @@ struct GalleryCase {
 // began to be measured where the cell tables show the chord deepest, unless its middle is
 // inside (occluder.cpp, levelSetRadius: other discs, so other coverage rays; at 300 pixels wide
 // the bunny's image within 5 of 255 at one pixel, mean 1.5e-6, fog's and table1's within 1;
-// the rest unchanged).
+// the rest unchanged). Every default-mode row on 2026-12-02 (thirteenth session) when the
+// tangent mode began to place a Newton step's vertex, and a tangent arc's shoulder crossing, by
+// secant steps on the level set's own field (contour_tangent.cpp, fieldRoot), to place check
+// points one step from both ends the same way (crossingOnSegment), and to probe beside the
+// middle of an arc whose tangents meet next to one end (the paper's, arcs and Monte Carlo rows
+// unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "464c5700ec31d49a"},
+    {"default", "", "80362359a1414b30"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "7a80db6d0d561542"},
+    {"table1", "", "5b847b2374a5245b"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "b108cc311586ec2b"},
-    {"vdb_tool", "", "fc45ddf53aea591f"},
-    {"bunny", "", "97360c14af9ffda3"},
-    {"fog", "", "e5a16b6cb6cb686a"},
+    {"csg", "", "8abe3669074157bc"},
+    {"vdb_tool", "", "902dca971608a9d8"},
+    {"bunny", "", "25344c37109adb69"},
+    {"fog", "", "972c039476e5bc38"},
 };
 
 }  // namespace

@@ -615,3 +615,46 @@ TEST_CASE("a clearance bound holds: moving the segment's start by less keeps the
     CHECK(hiddenKnown > 100);
     CHECK(checked > 1000);
 }
+
+TEST_CASE("localMinimum: a segment's smallest level-set value near a fraction, no ray cast",
+          "[occluder]") {
+    // Segments passing at a known distance d from a level-set sphere (d from -1.5 to +2
+    // voxels: inside the band): the smallest trilinear value along them is the exact distance
+    // up to the interpolation's error (~3h^2/(8r) = 0.0075 voxel) and the golden-section
+    // search's (a fiftieth of a voxel in t, second order in the value), near the closest
+    // approach, from a window that starts off-centre. Analytic shapes and windows whose
+    // smallest value lies beyond the band give NaN.
+    LevelSetSphere sphere(kCenter);
+    Occluder::Query& q = sphere.q;
+    std::mt19937_64 rng(20261202);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    double worst = 0.0;
+    for (int i = 0; i < 200; ++i) {
+        const double d = (-1.5 + 3.5 * u(rng)) * kVoxel;
+        const Vec3 dir = randomUnit(rng);
+        const Vec3 side = glm::normalize(glm::cross(dir, randomUnit(rng)));
+        const Vec3 closest = kCenter + (kRadius + d) * side;
+        const Vec3 from = closest - 2.0 * dir, to = closest + 1.0 * dir;
+        const double tClosest = 2.0 / 3.0;
+        // The window (3 voxels either side) starts up to 4 voxels off the closest approach.
+        const double start = tClosest + (8.0 * u(rng) - 4.0) * kVoxel / 3.0;
+        double at = -1.0;
+        const double m = q.localMinimum(0, from, to, start, 3.0 * kVoxel / 3.0, &at);
+        REQUIRE(std::isfinite(m));
+        worst = std::max(worst, std::abs(m - d) / kVoxel);
+        CHECK(std::abs(m - d) < 0.02 * kVoxel);
+        // The minimum is flat there (the value moves by 0.004 voxel over 0.6 voxel of the
+        // segment), so its place is known to about a voxel.
+        CHECK(std::abs(at - tClosest) * 3.0 < 1.0 * kVoxel);
+    }
+    INFO("worst |minimum - d| = " << worst << " voxel");
+    CHECK(q.raysCast() == 0);
+    // Far beyond the band, or an analytic shape: nothing.
+    const Vec3 farPoint = kCenter + Vec3(kRadius + 10.0 * kVoxel, 0.0, 0.0);
+    CHECK(std::isnan(q.localMinimum(0, farPoint - Vec3(0, 1, 0), farPoint + Vec3(0, 1, 0), 0.5,
+                                    0.05, nullptr)));
+    const Occluder analytic({AnalyticSphere{kCenter, kRadius}});
+    Occluder::Query qa = analytic.makeQuery();
+    CHECK(std::isnan(qa.localMinimum(0, kCenter - Vec3(0, 1, 1), kCenter + Vec3(0, 1, 1), 0.5,
+                                     0.1, nullptr)));
+}

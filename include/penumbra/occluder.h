@@ -207,6 +207,16 @@ public:
     bool occludedCertified(const Vec3& from, const Vec3& to, double want, double* tHit,
                            Certificate& out);
 
+    /// The smallest value of level-set obstacle i's field, as its rays see it (trilinear), along
+    /// the segment from `from` to `to` near the fraction t: sampled every half voxel over the
+    /// fractions t +- halfWindow (the window moves on, twice at most, while the smallest sample
+    /// lies at its end), then refined by a golden-section search between the smallest sample's
+    /// neighbours; *at receives its fraction. NaN when obstacle i is not a level set or when
+    /// the smallest lies beyond the narrow band or at the window's end. Not a shadow ray: a few
+    /// dozen samples of the grid, no march.
+    double localMinimum(size_t i, const Vec3& from, const Vec3& to, double t, double halfWindow,
+                        double* at);
+
     /// Transmittance of the segment through the media, exp(-sum of extinction x integral of
     /// density): 1 when it crosses none (then no ray is counted), else one ray. Opaque obstacles
     /// are not looked at.
