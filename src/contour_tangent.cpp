@@ -54,9 +54,10 @@ double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
 // Where the contour crosses the line X(x) = from + x dir (world, on the light) between x = lo
 // and x = hi, found on a level set's own field: the rays there touch the obstacle q's ray
 // measured its clearance to where the smallest trilinear value along them, near the closest
-// approach, is zero. Secant steps from q (at x = xq) and `guess` (newtonAlong's prediction),
-// each value measured by Occluder::Query::localMinimum near where the previous one lay, the
-// root kept inside the bracket [lo, hi] (visible at lo when visibleLo). Returns the last
+// approach, is zero (within kFieldRootTolerance voxel). Secant steps from q (at x = xq) and
+// `guess` (newtonAlong's prediction), each value measured by Occluder::Query::localMinimum near
+// where the previous one lay, the root kept inside the bracket [lo, hi] (visible at lo when
+// visibleLo). Returns the last
 // estimate; `guess` when q's obstacle is analytic (its Newton steps rest on exact distances) or
 // nothing was measured; NaN when every value measured lay on one side and the bracket closed
 // on one of its ends (the field puts the crossing outside [lo, hi]).
@@ -111,7 +112,8 @@ double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, c
         if (!std::isfinite(f0)) return best;
         narrow(x0, f0);
     }
-    for (int step = 0; step < kFieldRootSteps && bestF >= 0.005 * voxel && f1 != f0; ++step) {
+    const double tolerance = kFieldRootTolerance * voxel;
+    for (int step = 0; step < kFieldRootSteps && bestF >= tolerance && f1 != f0; ++step) {
         double x2 = x1 - f1 * (x1 - x0) / (f1 - f0);
         if (!(x2 > a && x2 < b)) x2 = 0.5 * (a + b);
         const double f2 = field(x2);
@@ -122,11 +124,11 @@ double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, c
     // The last secant's root when it falls inside the bracket, else the best point measured;
     // none when every value measured lay on one side and the bracket closed on its end (the
     // field puts the crossing outside [lo, hi]).
-    if (bestF >= 0.005 * voxel && f1 != f0) {
+    if (bestF >= tolerance && f1 != f0) {
         const double x2 = x1 - f1 * (x1 - x0) / (f1 - f0);
         if (x2 > a && x2 < b) return x2;
     }
-    if (bestF >= 0.005 * voxel && (a == lo || b == hi) && (best == lo || best == hi))
+    if (bestF >= tolerance && (a == lo || b == hi) && (best == lo || best == hi))
         return std::nan("");
     return best;
 }

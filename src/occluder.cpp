@@ -1730,7 +1730,7 @@ double Occluder::Query::localMinimum(size_t i, const Vec3& from, const Vec3& to,
     double a = t0 + (kBest - 1) * dt, b = t0 + (kBest + 1) * dt;
     double x1 = b - g * (b - a), x2 = a + g * (b - a);
     double p1 = phiAt(x1), p2 = phiAt(x2);
-    const double tol = 0.02 * voxel / length;
+    const double tol = 0.1 * voxel / length;
     while (b - a > tol) {
         if (p1 < p2) {
             b = x2, x2 = x1, p2 = p1, x1 = b - g * (b - a), p1 = phiAt(x1);

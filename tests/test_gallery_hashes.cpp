@@ -138,15 +138,15 @@ struct GalleryCase {
 // middle of an arc whose tangents meet next to one end (the paper's, arcs and Monte Carlo rows
 // unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "80362359a1414b30"},
+    {"default", "", "6135a7355240640c"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "5b847b2374a5245b"},
+    {"table1", "", "beca0e07c14f1a69"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "8abe3669074157bc"},
+    {"csg", "", "cc15eb2c4898fd42"},
     {"vdb_tool", "", "902dca971608a9d8"},
-    {"bunny", "", "25344c37109adb69"},
+    {"bunny", "", "e66ca3e3a225e6c4"},
     {"fog", "", "972c039476e5bc38"},
 };
 

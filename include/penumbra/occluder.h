@@ -211,7 +211,7 @@ public:
     /// the segment from `from` to `to` near the fraction t: sampled every half voxel over the
     /// fractions t +- halfWindow (the window moves on, twice at most, while the smallest sample
     /// lies at its end), then refined by a golden-section search between the smallest sample's
-    /// neighbours; *at receives its fraction. NaN when obstacle i is not a level set or when
+    /// neighbours to a tenth of a voxel along the segment; *at receives its fraction. NaN when obstacle i is not a level set or when
     /// the smallest lies beyond the narrow band or at the window's end. Not a shadow ray: a few
     /// dozen samples of the grid, no march.
     double localMinimum(size_t i, const Vec3& from, const Vec3& to, double t, double halfWindow,
