@@ -10,6 +10,16 @@
 
 namespace penumbra {
 
+namespace {
+
+// The point at parameter t of the rational quadratic Bezier a-K-b of weight w (the tangent arc).
+Vec3 conicPoint(const Vec3& a, const Vec3& k, const Vec3& b, double w, double t) {
+    const double b0 = (1 - t) * (1 - t), b1 = 2.0 * w * t * (1 - t), b2 = t * t;
+    return (b0 * a + b1 * k + b2 * b) / (b0 + b1 + b2);
+}
+
+}  // namespace
+
 float ContourIntegrator::Lattice::clearanceOf(LatticePoint q) const {
     return scratch.mClear[settle(q)];
 }
@@ -57,17 +67,16 @@ double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
 // approach, is zero (within kFieldRootTolerance voxel). Secant steps from q (at x = xq) and
 // `guess` (newtonAlong's prediction), each value measured by Occluder::Query::localMinimum near
 // where the previous one lay, the root kept inside the bracket [lo, hi] (visible at lo when
-// visibleLo). Returns the last
-// estimate; `guess` when q's obstacle is analytic (its Newton steps rest on exact distances) or
-// nothing was measured; NaN when every value measured lay on one side and the bracket closed
-// on one of its ends (the field puts the crossing outside [lo, hi]).
+// visibleLo). Returns the last estimate; `guess` when q's obstacle is analytic (its Newton steps
+// rest on exact distances) or nothing was measured; NaN when every value measured lay on one
+// side and the bracket closed on one of its ends (the field puts the crossing outside [lo, hi]).
 //
 // Why: newtonAlong extrapolates the distances linearly, and the rays see the trilinear zero
 // crossing. On a level set's sharp edge that crossing bevels the edge by a fraction of a voxel
 // where the distances describe the sharp edge, and the Newton step lands on the sharp one: a
-// level-set slab's shadow came out 0.25% of the form factor too dark at any lattice finer than
-// 2^5 (docs/BENCHMARKS.md, "Seed 605's one-signed difference"), the rotated box of random scene
-// 605 up to 0.5%. On small curved shapes (a torus whose tube is two voxels thick) the clearance
+// level-set slab's shadow came out 0.21% of the unoccluded form factor too dark at any lattice
+// finer than 2^5 (docs/BENCHMARKS.md, "Seed 605's one-signed difference"), the rotated box of
+// random scene 605 up to 0.5%. On small curved shapes (a torus whose tube is two voxels thick) the clearance
 // is far from linear over one lattice unit, and Newton vertices fell a third of a unit short.
 double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir,
                                              double xq, double guess, double lo, double hi,
@@ -419,9 +428,7 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
         for (int i = 1; i <= kSamples; ++i) {
             Vec3 p;
             if (std::isfinite(arc.w)) {
-                const double t = double(i) / kSamples;
-                const double b0 = (1 - t) * (1 - t), b1 = 2.0 * arc.w * t * (1 - t), b2 = t * t;
-                p = (b0 * a.c + b1 * arc.k + b2 * b.c) / (b0 + b1 + b2);
+                p = conicPoint(a.c, arc.k, b.c, arc.w, double(i) / kSamples);
             } else {
                 p = i < kSamples / 2 ? a.c + (2.0 * i / kSamples) * (arc.k - a.c)
                                      : arc.k + (2.0 * i / kSamples - 1.0) * (b.c - arc.k);
@@ -490,8 +497,7 @@ void ContourIntegrator::Lattice::emitArc(const Vertex& a, const Vertex& b, const
     Vec3 prev = a.i;
     for (int i = 1; i <= kChords; ++i) {
         const double t = double(i) / kChords;
-        const double b0 = (1 - t) * (1 - t), b1 = 2.0 * arc.w * t * (1 - t), b2 = t * t;
-        const Vec3 c = (b0 * a.c + b1 * arc.k + b2 * b.c) / (b0 + b1 + b2);
+        const Vec3 c = conicPoint(a.c, arc.k, b.c, arc.w, t);
         const Vec3 next = i == kChords ? b.i : onObstacle(c, t);
         emit(prev, next);
         prev = next;
