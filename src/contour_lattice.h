@@ -97,6 +97,17 @@ constexpr double kOwnSurfaceOffsets = 8.0;
 // 6-9 8-bit units off, the tangents of surface a few tens of voxels from the receiver; at 4 the
 // largest is 0.35, for 10% more rays there and under 1% on random scenes.)
 constexpr double kMagnifiedVoxel = 4.0;
+// The weight w with which the polygon X Z Y, emitted as w (X->Z) + w (Z->Y) + (1 - w) (X->Y),
+// integrates the parabolic arc through X, Z and Y (on the light): the area between the arc and
+// its chord is the triangle XZY divided by 3 s (1 - s), s being Z's position along the chord
+// (Archimedes: 4/3 of the triangle when Z is the apex, s = 1/2), s kept within [0.15, 0.85].
+inline double parabolaWeight(const Vec3& x, const Vec3& z, const Vec3& y) {
+    const Vec3 chord = y - x;
+    const double len2 = glm::dot(chord, chord);
+    const double s = std::clamp(len2 > 0.0 ? glm::dot(z - x, chord) / len2 : 0.5, 0.15, 0.85);
+    return 1.0 / (3.0 * s * (1.0 - s));
+}
+
 // fieldRoot: secant steps on the level set's own field after its first one or two values (each
 // a dozen or so samples of the grid), how far (in voxels, along the ray) from the previous
 // closest approach the new one is looked for, and the field's value (in voxels) that counts as

@@ -236,14 +236,8 @@ void ContourIntegrator::Lattice::emitPiece(const Vertex& a, const Vertex& b, con
     } else if (pc.arcOk) {
         emitArc(a, b, pc.arc);
     } else if (self.mSettings.curvedContour) {
-        // Treat X, Z, Y as points of a parabolic arc: the area between the arc and its
-        // chord is the triangle XZY divided by 3 s (1 - s), s being Z's position along
-        // the chord (Archimedes: 4/3 of the triangle when Z is the apex, s = 1/2).
-        const Vec3 chord = b.c - a.c;
-        const double len2 = glm::dot(chord, chord);
-        double sz = len2 > 0.0 ? glm::dot(pc.z.c - a.c, chord) / len2 : 0.5;
-        sz = std::clamp(sz, 0.15, 0.85);
-        const double w = 1.0 / (3.0 * sz * (1.0 - sz));
+        // X, Z, Y taken as points of a parabolic arc (parabolaWeight).
+        const double w = parabolaWeight(a.c, pc.z.c, b.c);
         emit(a.i, pc.z.i, w);
         emit(pc.z.i, b.i, w);
         emit(a.i, b.i, 1.0 - w);

@@ -493,14 +493,22 @@ void ContourIntegrator::Lattice::emitArc(const Vertex& a, const Vertex& b, const
         emit(ik, b.i);
         return;
     }
-    constexpr int kChords = 8;
-    Vec3 prev = a.i;
-    for (int i = 1; i <= kChords; ++i) {
-        const double t = double(i) / kChords;
-        const Vec3 c = conicPoint(a.c, arc.k, b.c, arc.w, t);
-        const Vec3 next = i == kChords ? b.i : onObstacle(c, t);
-        emit(prev, next);
-        prev = next;
+    // Eight points' worth of parabolic pieces, each through three points of the arc and
+    // integrated as emitPiece integrates a checked piece (Archimedes' weights). Eight straight
+    // chords inside a convex arc cut its segments off: an analytic sphere's elliptic shadow came
+    // out 0.07% of the unoccluded form factor too bright, all of it that (0.00x now).
+    constexpr int kPoints = 8;
+    Vec3 fromC = a.c, fromI = a.i;
+    for (int i = 2; i <= kPoints; i += 2) {
+        const double tm = double(i - 1) / kPoints, t = double(i) / kPoints;
+        const Vec3 cm = conicPoint(a.c, arc.k, b.c, arc.w, tm);
+        const Vec3 c = i == kPoints ? b.c : conicPoint(a.c, arc.k, b.c, arc.w, t);
+        const Vec3 im = onObstacle(cm, tm), ie = i == kPoints ? b.i : onObstacle(c, t);
+        const double w = parabolaWeight(fromC, cm, c);
+        emit(fromI, im, w);
+        emit(im, ie, w);
+        emit(fromI, ie, 1.0 - w);
+        fromC = c, fromI = ie;
     }
 }
 
