@@ -607,18 +607,8 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
     }
     if (polish && std::isfinite(minPhi)) {
         // Golden-section search on [before, after], keeping the sampled minimum as a candidate.
-        const double g = 0.5 * (std::sqrt(5.0) - 1.0);
-        double a = before, b = after;
-        double x1 = b - g * (b - a), x2 = a + g * (b - a);
-        double f1 = phiAt(x1), f2 = phiAt(x2);
-        while (b - a > 0.01 * voxel) {
-            if (f1 < f2) {
-                b = x2, x2 = x1, f2 = f1, x1 = b - g * (b - a), f1 = phiAt(x1);
-            } else {
-                a = x1, x1 = x2, f1 = f2, x2 = a + g * (b - a), f2 = phiAt(x2);
-            }
-        }
-        const double t = f1 < f2 ? x1 : x2, phi = std::min(f1, f2);
+        const GoldenSection g = goldenSection(phiAt, before, after, 1000, 0.01 * voxel);
+        const double t = g.f1 < g.f2 ? g.m1 : g.m2, phi = std::min(g.f1, g.f2);
         if (phi < minPhi) minPhi = phi, c.at = t;
     }
     c.distance = minPhi;
@@ -1726,23 +1716,10 @@ double Occluder::Query::localMinimum(size_t i, const Vec3& from, const Vec3& to,
     }
     if (kBest <= 0 || kBest >= n || !(best < 0.9 * band)) return kNan;
     // Golden-section search between the smallest sample's neighbours.
-    const double g = 0.5 * (std::sqrt(5.0) - 1.0);
-    double a = t0 + (kBest - 1) * dt, b = t0 + (kBest + 1) * dt;
-    double x1 = b - g * (b - a), x2 = a + g * (b - a);
-    double p1 = phiAt(x1), p2 = phiAt(x2);
-    const double tol = 0.1 * voxel / length;
-    while (b - a > tol) {
-        if (p1 < p2) {
-            b = x2, x2 = x1, p2 = p1, x1 = b - g * (b - a), p1 = phiAt(x1);
-        } else {
-            a = x1, x1 = x2, p1 = p2, x2 = a + g * (b - a), p2 = phiAt(x2);
-        }
-    }
+    const GoldenSection g = goldenSection(phiAt, t0 + (kBest - 1) * dt, t0 + (kBest + 1) * dt,
+                                          1000, 0.1 * voxel / length);
     double tb = t0 + kBest * dt;
-    if (std::min(p1, p2) < best) {
-        best = std::min(p1, p2);
-        tb = p1 < p2 ? x1 : x2;
-    }
+    if (std::min(g.f1, g.f2) < best) best = std::min(g.f1, g.f2), tb = g.f1 < g.f2 ? g.m1 : g.m2;
     if (at) *at = tb;
     return best;
 }
