@@ -707,6 +707,37 @@ TEST_CASE("tangent arcs integrated as parabolic pieces: a sphere's penumbra is n
     }
 }
 
+TEST_CASE("tangent arcs: no arc bent by a shoulder ray that passes closest to another sphere",
+          "[aci][coverage]") {
+    // bench_coverage's scene 38 (seven exact spheres under the paper's light, centres and radii
+    // rounded here to five decimals): from these ground points a small sphere's shadow on the
+    // light (radius 0.081 at height 1.66) bulges out of a large one's (0.349 at 2.26). One
+    // first-level square's arc along the large shadow took its shoulder ray beside the small
+    // one, whose clearance (to the small sphere) placed the arc: 0.52-0.69% of the unoccluded
+    // form factor too dark around the first point, with 35-42 rays, and no coverage ray
+    // contradicted it (the arc stayed within a lattice unit of the union's edge).
+    const RectLight light = test::paperLight();
+    const std::vector<AnalyticSphere> spheres = {
+        {Vec3(0.10889, -0.21187, 2.25604), 0.34878}, {Vec3(0.98274, 0.70381, 0.76497), 0.16950},
+        {Vec3(-1.10024, -0.53729, 2.09328), 0.36198}, {Vec3(-1.19933, 0.86941, 3.04789), 0.25072},
+        {Vec3(-0.06465, -0.91042, 1.65638), 0.08088}, {Vec3(0.36318, 0.53428, 0.79782), 0.10604},
+        {Vec3(-0.83270, -0.84217, 1.35783), 0.08746}};
+    std::vector<ObstacleShape> shapes(spheres.begin(), spheres.end());
+    const Occluder occ(shapes);
+    Occluder::Query q = occ.makeQuery();
+    ContourIntegrator aci{AciSettings{}};
+    for (const Vec3& p : {Vec3(-0.456634, -1.853629, 0.0), Vec3(-0.466634, -1.843629, 0.0),
+                          Vec3(-0.446634, -1.853629, 0.0), Vec3(-0.436634, -1.853629, 0.0)}) {
+        const Receiver r{p, kUp};
+        const Estimate e = aci.evaluate(r, light, q);
+        const double exact = exactSpheres(r, light, spheres);
+        const double full = unoccludedFormFactor(light, r);
+        CAPTURE(p.x, p.y, e.formFactor, exact, full, e.errorBound);
+        CHECK(std::abs(e.formFactor - exact) <= 0.002 * full);
+        CHECK(std::abs(e.formFactor - exact) <= e.errorBound);
+    }
+}
+
 TEST_CASE("coverage: a point on a torus' inner wall just under the light (random scene 9)",
           "[aci][coverage]") {
     // bench_random's seed 9 (bench/bench_random.cpp) has a small level-set torus 0.12 from a
