@@ -291,7 +291,9 @@ struct ContourIntegrator::Lattice {
     bool pass(int r);
     bool square(int x0, int y0, int k, double thr, int depth);
     int contourPieces(int x0, int y0, int k, const LatticePoint c[4], const bool v[4],
-                      Piece pieces[2]);
+                      const Vertex x[4], Piece pieces[2]);
+    void lopsidedCheck(Piece& pc, const LatticePoint c[4], const bool v[4], const Vertex x[4],
+                       int corner, int s) const;
     void emitPiece(const Vertex& a, const Vertex& b, const Piece& pc);
     void emitFrameBorder(const LatticePoint c[4], const bool v[4], const Vertex x[4],
                          const bool onBorder[4]);
@@ -320,6 +322,7 @@ struct ContourIntegrator::Lattice {
                      double lo, double hi, bool visibleLo);
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;
     bool untrustedTangent(LatticePoint q) const;
+    bool nearOwnStart(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;
     double coverageThreshold() const { return self.mSettings.coverage ? kCoverageThreshold : 1.0; }
     bool arcHolds(const Vertex& a, const Vertex& b, const Vec3& mid, int x0, int y0, int s);

@@ -86,7 +86,7 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
         if (v[i] != v[j]) x[i] = v[i] ? crossing(c[i], c[j], k) : crossing(c[j], c[i], k);
     }
     Piece pieces[2];
-    const int nPieces = contourPieces(x0, y0, k, c, v, pieces);
+    const int nPieces = contourPieces(x0, y0, k, c, v, x, pieces);
 
     // A piece between two points of a polygon or disc light's border (or the horizon) is
     // that border: exact, no check, when it stays near the square.
@@ -168,7 +168,7 @@ bool ContourIntegrator::Lattice::nearReceiver(int x0, int y0, int s) const {
 // the visible part is on the left in (u, v). Each piece cuts off one corner, through which its
 // check diagonal runs. A saddle (case 4) asks the square's centre. Returns the piece count.
 int ContourIntegrator::Lattice::contourPieces(int x0, int y0, int k, const LatticePoint c[4],
-                                              const bool v[4], Piece pieces[2]) {
+                                              const bool v[4], const Vertex x[4], Piece pieces[2]) {
     const int s = 2 << k;
     const int nVisible = v[0] + v[1] + v[2] + v[3];
     int nPieces = 0;
@@ -209,6 +209,7 @@ int ContourIntegrator::Lattice::contourPieces(int x0, int y0, int k, const Latti
         const int opposite = (corner + 2) & 3;
         pc.checkVis = v[corner] ? c[corner] : c[opposite];
         pc.checkHid = v[corner] ? c[opposite] : c[corner];
+        if (self.mSettings.coverage) lopsidedCheck(pc, c, v, x, corner, s);
     } else if (self.mSettings.midlineCheck) {
         // The contour crosses two opposite sides; check it on the square's midline between
         // the other two sides' midpoints, half-way along the chord.
@@ -225,6 +226,43 @@ int ContourIntegrator::Lattice::contourPieces(int x0, int y0, int k, const Latti
         pc.checkHid = v[d] ? c[d + 2] : c[d];
     }
     return nPieces;
+}
+
+// Beyond the paper (coverage mode): a piece that cuts off corner c[corner] far along one of
+// its two sides and close to it along the other runs almost along that first side, and the
+// diagonal through the corner meets it next to its near end, where it says nothing of how far
+// the contour bulges from the chord (random scene 612: the tip of a cylinder's shadow between
+// the chord and the square's far corners, 0.4% of the form factor, passed its diagonal check).
+// Such a piece is checked on the line across the square through the chord's middle instead,
+// from the point of the long side half-way to its crossing (the corner's answer) to the
+// opposite side (the other answer); both ends are traced, and an end that disagrees splits
+// the square, as on a midline.
+void ContourIntegrator::Lattice::lopsidedCheck(Piece& pc, const LatticePoint c[4], const bool v[4],
+                                               const Vertex x[4], int corner, int s) const {
+    const LatticePoint at = c[corner];
+    const LatticePoint next = c[(corner + 1) & 3], prev = c[(corner + 3) & 3];
+    const int d1a = (next.a - at.a) / s, d1b = (next.b - at.b) / s;
+    const int d2a = (prev.a - at.a) / s, d2b = (prev.b - at.b) / s;
+    // How far each crossing lies from the corner along its side, in lattice units.
+    auto along = [&](const Vertex& vx, int da, int db) {
+        const Vec2 uv = light.coordinates(vx.c);
+        return (uv.x * Na - at.a) * da + (uv.y * Nb - at.b) * db;
+    };
+    const double t1 = along(x[corner], d1a, d1b);
+    const double t2 = along(x[(corner + 3) & 3], d2a, d2b);
+    constexpr double kLopsided = 2.0;
+    const bool longFirst = t1 >= t2;
+    const double tLong = longFirst ? t1 : t2, tShort = longFirst ? t2 : t1;
+    if (!(tLong > kLopsided * std::max(tShort, 0.0))) return;
+    const int offset = std::min(static_cast<int>(std::lround(0.5 * tLong)), s - 1);
+    if (offset < 1) return;
+    const int la = longFirst ? d1a : d2a, lb = longFirst ? d1b : d2b;  // along the long side
+    const int ca = longFirst ? d2a : d1a, cb = longFirst ? d2b : d1b;  // across the square
+    const LatticePoint near{at.a + offset * la, at.b + offset * lb};
+    const LatticePoint far{near.a + s * ca, near.b + s * cb};
+    pc.checkVis = v[corner] ? near : far;
+    pc.checkHid = v[corner] ? far : near;
+    pc.midline = true;
 }
 
 // Adds a closed piece to the contour integral: the border it runs along, its tangent arc, or

@@ -61,6 +61,15 @@ double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
     return (-c * D - glm::dot(g, from - target)) / slope;
 }
 
+// Whether q's ray passes closest to a surface within a few ray offsets of the receiver point:
+// that surface is the receiver's own, met at a grazing angle (untrustedTangent's first reason).
+bool ContourIntegrator::Lattice::nearOwnStart(LatticePoint q) const {
+    const double h = closestFractionOf(q);
+    if (!(h > 0.0)) return false;
+    const double reach = kOwnSurfaceOffsets * std::abs(self.mSettings.rayOffset);
+    return h * glm::length(pointOf(q) - origin) < reach;
+}
+
 // Where the contour crosses the line X(x) = from + x dir (world, on the light) between x = lo
 // and x = hi, found on a level set's own field: the rays there touch the obstacle q's ray
 // measured its clearance to where the smallest trilinear value along them, near the closest
@@ -78,11 +87,17 @@ double ContourIntegrator::Lattice::newtonAlong(LatticePoint q, const Vec3& from,
 // finer than 2^5 (docs/BENCHMARKS.md, "Seed 605's one-signed difference"), the rotated box of
 // random scene 605 up to 0.5%. On small curved shapes (a torus whose tube is two voxels thick) the clearance
 // is far from linear over one lattice unit, and Newton vertices fell a third of a unit short.
+// A ray whose voxel spans many lattice units (untrustedTangent's second reason) gives no
+// tangent line, but its vertex is still moved onto the field: the field is what the rays see,
+// however magnified. Newton vertices there all fell short on the visible side (a level-set
+// cylinder's distance is convex along the line, so its tangent meets zero early: 0.14 of a unit
+// on average, one-signed, on random scene 612), and its penumbra came out 0.05% of the
+// unoccluded form factor too dark, halving with each dichotomy step added; on the field, 0.004%.
 double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir,
                                              double xq, double guess, double lo, double hi,
                                              bool visibleLo) {
     const int obstacle = obstacleOf(q);
-    if (obstacle < 0 || staleOf(q) || untrustedTangent(q)) return guess;
+    if (obstacle < 0 || staleOf(q) || nearOwnStart(q)) return guess;
     const double voxel = query.occluder().voxelSize(static_cast<size_t>(obstacle));
     double tc = closestFractionOf(q);
     if (!(voxel > 0.0) || !(tc > 0.0) || !std::isfinite(clearanceOf(q))) return guess;
@@ -158,10 +173,9 @@ double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, c
 //   bunny's back, in the shadow of its own head, points came out 5% low while a voxel spanned
 //   4-16 units (kMagnifiedVoxel was 16 until 2026-12-01).
 bool ContourIntegrator::Lattice::untrustedTangent(LatticePoint q) const {
+    if (nearOwnStart(q)) return true;
     const double h = closestFractionOf(q);
     if (!(h > 0.0)) return false;
-    const double reach = kOwnSurfaceOffsets * std::abs(self.mSettings.rayOffset);
-    if (h * glm::length(pointOf(q) - origin) < reach) return true;
     const int obstacle = obstacleOf(q);
     if (obstacle < 0) return false;
     const double voxel = query.occluder().voxelSize(static_cast<size_t>(obstacle));

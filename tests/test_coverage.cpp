@@ -686,6 +686,38 @@ TEST_CASE("tangent mode: contour points where a level set's rays find its surfac
     }
 }
 
+TEST_CASE("a piece that cuts a corner off lopsidedly is checked through its chord's middle",
+          "[aci][coverage]") {
+    // Random scene 612's level-set cylinder, seen from pixel (68, 158) of its 200 x 200 image: a
+    // voxel spans more than kMagnifiedVoxel lattice units, so no vertex has a tangent line and
+    // every piece takes the section 3.2 check. One first-level square holds the tip of the
+    // shadow: its piece runs from a crossing next to the cut-off corner to one far along the
+    // other side, and the corner's diagonal met the contour next to the near end, where the
+    // chord is right. The tip between the chord and the square's far corners passed unseen,
+    // 0.39% of the unoccluded form factor too bright (inside the bound: coverage ran out of
+    // rays first). Checked across the square through the chord's middle: 0.02%.
+    SceneUnderTest t("random_seed612.json");
+    const FieldCase c = againstStratified(t.scene, t.occ, t.q, Vec3(0.585194931, 3.696014186, 0.0));
+    CAPTURE(c.aci.formFactor, c.aci.errorBound, c.full, c.error);
+    CHECK(std::abs(c.error) <= 0.001);
+    CHECK(std::abs(c.error) * c.full <= c.aci.errorBound);
+}
+
+TEST_CASE("vertices on a level set's field also where its voxel spans many lattice units",
+          "[aci][coverage]") {
+    // Random scene 612's level-set cylinder seen from pixel (83, 134) of its 200 x 200 image: its
+    // rays' voxel spans more than kMagnifiedVoxel lattice units, so no vertex has a tangent line.
+    // Their vertices were left where a Newton step from the visible end put them, which on a
+    // convex distance falls short on the visible side (0.14 of a unit on average, one-signed):
+    // the penumbra was 0.046% of the unoccluded form factor too dark, halving with every
+    // dichotomy step added. Moved onto the field like the other vertices: 0.006% (against 2^20
+    // rays 0.003%; this test's 2^18-ray reference is good to about 0.003%).
+    SceneUnderTest t("random_seed612.json");
+    const FieldCase c = againstStratified(t.scene, t.occ, t.q, Vec3(-0.007668456, 2.190659587, 0.0));
+    CAPTURE(c.aci.formFactor, c.aci.errorBound, c.full, c.error);
+    CHECK(std::abs(c.error) <= 0.00015);
+}
+
 TEST_CASE("tangent arcs integrated as parabolic pieces: a sphere's penumbra is not too bright",
           "[aci][coverage]") {
     // An exact sphere (radius 0.5, centre height 2) under the paper's light: its shadow on the

@@ -138,18 +138,24 @@ struct GalleryCase {
 // middle of an arc whose tangents meet next to one end (the paper's, arcs and Monte Carlo rows
 // unchanged). The default rows of default, table1, csg and bunny the same session when a
 // tangent arc began to be integrated as four parabolic pieces through its points instead of
-// eight chords (contour_tangent.cpp, emitArc; the rest unchanged).
+// eight chords (contour_tangent.cpp, emitArc; the rest unchanged). Every default-mode row on
+// 2026-12-03 when a checked piece that cuts a corner off lopsidedly began to be checked across
+// the square through its chord's middle instead of on the corner's diagonal
+// (contour_squares.cpp, lopsidedCheck; the paper's, arcs and Monte Carlo rows unchanged). The
+// default rows of table1, csg, vdb_tool, bunny and fog the same day when a vertex whose ray's
+// voxel spans more than kMagnifiedVoxel lattice units began to be moved onto the level set's
+// field like the others (contour_tangent.cpp, fieldRoot; the rest unchanged).
 const GalleryCase kCases[] = {
-    {"default", "", "9821df8b68cb93d9"},
+    {"default", "", "24e42b1de8764c79"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "ca78ef02b14d24ee"},
+    {"table1", "", "076e1128e463add0"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "1ffec070e52ee7be"},
-    {"vdb_tool", "", "902dca971608a9d8"},
-    {"bunny", "", "fa15fac58dc08843"},
-    {"fog", "", "972c039476e5bc38"},
+    {"csg", "", "12defc8e1da4c900"},
+    {"vdb_tool", "", "a7a580add7dfded6"},
+    {"bunny", "", "1cb74417a957f219"},
+    {"fog", "", "25c44fb12564a597"},
 };
 
 }  // namespace
