@@ -92,7 +92,7 @@ bool ContourIntegrator::Lattice::nearOwnStart(LatticePoint q) const {
 // however magnified. Newton vertices there all fell short on the visible side (a level-set
 // cylinder's distance is convex along the line, so its tangent meets zero early: 0.14 of a unit
 // on average, one-signed, on random scene 612), and its penumbra came out 0.05% of the
-// unoccluded form factor too dark, halving with each dichotomy step added; on the field, 0.004%.
+// unoccluded form factor too dark, halving with each dichotomy step added; on the field, 0.003%.
 double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir,
                                              double xq, double guess, double lo, double hi,
                                              bool visibleLo) {
