@@ -41,6 +41,7 @@ Corner traceRay(Occluder::Query& query, const Vec3& origin, const Vec3& target,
                             ? query.occludedCertified(origin, target, want, &tHit, out.cert)
                             : query.occluded(origin, target, &tHit, measure ? &c : nullptr);
     out.blocker = hidden ? query.lastBlocker() : -1;
+    out.geometry.hider = static_cast<float>(out.blocker);
     recordClearance(c, glm::length(target - origin), out.clear, out.geometry);
     out.bound = c.bound;
     out.sample = hidden ? static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0))

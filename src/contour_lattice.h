@@ -36,6 +36,7 @@ struct RayGeometry {
     float closest = 0.0f;                  // fraction of the ray; 0: unknown
     float obstacle = -1.0f;                // the obstacle's index; -1: unknown
     float stale = 0.0f;                    // 1: an earlier receiver point's ray (reuseCorners)
+    float hider = -1.0f;                   // the obstacle nearest M that blocks it; -1: none
 };
 
 // One traced ray as a lattice sample keeps it, and as reuseCorners keeps a first-level one.
@@ -317,6 +318,7 @@ struct ContourIntegrator::Lattice {
     double closestFractionOf(LatticePoint q) const;
     bool staleOf(LatticePoint q) const;
     int obstacleOf(LatticePoint q) const;
+    int hiderOf(LatticePoint q) const;
     double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
     double fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir, double xq, double guess,
                      double lo, double hi, bool visibleLo);

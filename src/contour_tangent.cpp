@@ -44,6 +44,12 @@ int ContourIntegrator::Lattice::obstacleOf(LatticePoint q) const {
     return static_cast<int>(scratch.mGeometry[settle(q)].obstacle);
 }
 
+// The obstacle nearest the receiver point that blocks q's ray (-1 for a visible one), known
+// from the trace itself: unlike obstacleOf, it needs no clearance.
+int ContourIntegrator::Lattice::hiderOf(LatticePoint q) const {
+    return static_cast<int>(scratch.mGeometry[index(q)].hider);
+}
+
 // tangentContour: where the contour crosses the line X(t) = from + t dir (world, on the
 // light), predicted from the ray to lattice sample q alone. That ray passes at angular
 // clearance c from the surface where the distance gradient is g; moving its end by delta
@@ -230,7 +236,7 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
         if (std::isfinite(fromVis) && fromVis >= lo && fromVis <= hi)
             return {fromVis,
                     !staleOf(at(lo)) && !untrustedTangent(at(lo)) && fromVis - lo <= kReach &&
-                        obstacleOf(at(lo)) == obstacleOf(at(hi)),
+                        obstacleOf(at(lo)) == hiderOf(at(hi)),
                     lo};
         const double fromHid = newtonAlong(at(hi), p0, step);
         if (std::isfinite(fromHid) && fromHid >= lo && fromHid <= hi)
@@ -263,7 +269,7 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
     double e = std::clamp(g.e, double(lo), double(hi));
     // A Newton step's vertex moved to where the rays find the surface (on a level set), when
     // the obstacle its ray measured hides the other end.
-    if (g.from >= 0 && obstacleOf(at(lo)) == obstacleOf(at(hi)) &&
+    if (g.from >= 0 && obstacleOf(at(lo)) == hiderOf(at(hi)) &&
         peek(at(hi)) != kBelowHorizon) {
         const double root = fieldRoot(at(g.from), p0, step, g.from, e, lo, hi, true);
         if (std::isfinite(root)) e = root;

@@ -788,6 +788,7 @@ private:
         mTs.sums[size_t(x)].shadowed = true;
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;
         mTs.stats.secondLevelRays += e.counts.secondLevelRays;
+        mTs.stats.coverageRays += e.counts.coverageRays;
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
@@ -808,6 +809,7 @@ private:
         ++st.aciEvaluations;
         st.firstLevelRays += e.counts.firstLevelRays;
         st.secondLevelRays += e.counts.secondLevelRays;
+        st.coverageRays += e.counts.coverageRays;
         st.cacheHits += e.counts.cacheHits;
         st.reusedRays += e.counts.reusedRays;
         st.restarts += e.counts.restarts;

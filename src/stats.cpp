@@ -22,6 +22,7 @@ void RenderStats::merge(const RenderStats& o) {
     shadowRays += o.shadowRays;
     firstLevelRays += o.firstLevelRays;
     secondLevelRays += o.secondLevelRays;
+    coverageRays += o.coverageRays;
     cacheHits += o.cacheHits;
     reusedRays += o.reusedRays;
     spans += o.spans;
@@ -58,6 +59,7 @@ std::string RenderStats::toJson() const {
     j["shadow_rays_per_viewing_ray"] = shadowRaysPerViewingRay();
     j["first_level_rays"] = firstLevelRays;
     j["second_level_rays"] = secondLevelRays;
+    j["coverage_rays"] = coverageRays;
     j["cache_hits"] = cacheHits;
     j["reused_first_level_rays"] = reusedRays;
     j["spans"] = spans;
