@@ -178,6 +178,9 @@ TEST_CASE("shaft culling gives the image of rendering with every obstacle as a c
     CHECK(a.stats.culledSpans > 0);
     CHECK(b.stats.culledSpans == 0);
     CHECK(a.stats.shadowRays < b.stats.shadowRays);
+    // Certified coverage (the default's) casts rays of its own; the arcs mode none.
+    CHECK((a.stats.coverageRays > 0) == (mode == AciMode::Tangent));
+    CHECK(a.stats.coverageRays < a.stats.secondLevelRays + 1);
     // The paper's pattern coherence interpolates the same pixels. The default's checked
     // interpolation runs over the pixels that need rays, and culling takes the closed form at
     // more of them: its runs are shorter, not the same.
@@ -650,10 +653,12 @@ TEST_CASE("penumbra render writes the image and statistics, and refuses bad flag
     for (const char* key :
          {"method", "width", "height", "threads", "seconds", "viewing_rays",
           "viewing_rays_with_shadow_rays", "shadow_rays", "shadow_rays_per_viewing_ray", "spans",
-          "interpolated_pixels", "aci_evaluations", "restarts"}) {
+          "interpolated_pixels", "aci_evaluations", "restarts", "coverage_rays"}) {
         CHECK(j.contains(key));
     }
     CHECK(j["viewing_rays"] == 320);
+    // Coverage's rays are a part of the second-level ones.
+    CHECK(j["coverage_rays"].get<uint64_t>() <= j["second_level_rays"].get<uint64_t>());
     double raySum = 0.0;
     for (float v : rays.data) raySum += v;
     CHECK(raySum == double(j["shadow_rays"].get<uint64_t>()));
