@@ -104,6 +104,64 @@ namespace {
 // 24 million cells: 24 MB of one-voxel table (a grid of about 290 voxels along each axis).
 constexpr size_t kMaxCells = size_t(24) << 20;
 
+/// CellTables' gradient bounds over the cells of the fine table (`dims`, lowest corner `lo`;
+/// `value`: the corners' values, x fastest, dims + 1 along each axis). A cell's bound is the
+/// root-sum-square of its largest difference along each axis, over the voxel size; a block's
+/// own is the largest of its cells', and its bound the largest over the blocks within reach:
+/// what a ball of the band's half width around a point of the block touches (cells whose
+/// lowest corner lies within the half width plus one voxel of the point).
+void slopeTable(const openvdb::FloatGrid& fine, const openvdb::Coord& lo, const int dims[3],
+                const std::vector<float>& value, CellTables& out) {
+    constexpr int B = CellTables::kSlopeBlock;
+    const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
+    const int nb[3] = {(dims[0] + B - 1) / B, (dims[1] + B - 1) / B, (dims[2] + B - 1) / B};
+    const size_t blocks = size_t(nb[0]) * nb[1] * nb[2];
+    const double h = fine.voxelSize()[0];
+    std::vector<float> own(blocks, 0.0f);
+    auto at = [&](int x, int y, int z) { return value[(size_t(z) * vd[1] + y) * vd[0] + x]; };
+    detail::parallelFor(tbb::blocked_range<int>(0, nb[2]), [&](const tbb::blocked_range<int>& r) {
+        for (int bz = r.begin(); bz != r.end(); ++bz)
+            for (int z = bz * B; z < std::min(dims[2], bz * B + B); ++z)
+                for (int y = 0; y < dims[1]; ++y)
+                    for (int x = 0; x < dims[0]; ++x) {
+                        float m[3] = {0.0f, 0.0f, 0.0f};
+                        for (int j = 0; j < 2; ++j)
+                            for (int k = 0; k < 2; ++k) {
+                                m[0] = std::max(m[0], std::abs(at(x + 1, y + j, z + k) - at(x, y + j, z + k)));
+                                m[1] = std::max(m[1], std::abs(at(x + j, y + 1, z + k) - at(x + j, y, z + k)));
+                                m[2] = std::max(m[2], std::abs(at(x + j, y + k, z + 1) - at(x + j, y + k, z)));
+                            }
+                        const float g = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+                        float& o = own[(size_t(bz) * nb[1] + y / B) * nb[0] + x / B];
+                        o = std::max(o, g);
+                    }
+    });
+    double top = 0.0;
+    for (float& o : own) {
+        o = float(o / h);
+        top = std::max(top, double(o));
+    }
+    const double halfWidth = double(fine.background()) / h;
+    const int reach = int(std::ceil((halfWidth + 1.0) / B));
+    out.slope.assign(blocks, 0.0f);
+    for (int bz = 0; bz < nb[2]; ++bz)
+        for (int by = 0; by < nb[1]; ++by)
+            for (int bx = 0; bx < nb[0]; ++bx) {
+                float m = 0.0f;
+                for (int z = std::max(0, bz - reach); z <= std::min(nb[2] - 1, bz + reach); ++z)
+                    for (int y = std::max(0, by - reach); y <= std::min(nb[1] - 1, by + reach); ++y)
+                        for (int x = std::max(0, bx - reach); x <= std::min(nb[0] - 1, bx + reach); ++x)
+                            m = std::max(m, own[(size_t(z) * nb[1] + y) * nb[0] + x]);
+                // Rounded up a little, for the interpolant's float arithmetic.
+                out.slope[(size_t(bz) * nb[1] + by) * nb[0] + bx] = m * (1.0f + 1e-5f);
+            }
+    for (int a = 0; a < 3; ++a) {
+        out.slopeOrigin[a] = lo[a];
+        out.slopeDims[a] = nb[a];
+    }
+    out.slopeMax = top * (1.0 + 1e-5);
+}
+
 /// The tables span the cells around every leaf and every tile inside the surface, a few cells
 /// beyond: outside them all eight corners of a cell are the background or an outside tile, so
 /// it is clear, as CellDistance assumes. Null for a grid that needs more than kMaxCells cells or
@@ -126,17 +184,15 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
     const openvdb::Coord lo = box.min(), ext = box.dim();  // cells: one per voxel of `box`
     const int dims[3] = {ext.x(), ext.y(), ext.z()};
     if (size_t(dims[0]) * size_t(dims[1]) * size_t(dims[2]) > kMaxCells) return nullptr;
-    // The sign of every corner (voxels lo .. lo + dims), then each cell's state.
+    // The value of every corner (voxels lo .. lo + dims), then each cell's state.
     const int vd[3] = {dims[0] + 1, dims[1] + 1, dims[2] + 1};
-    std::vector<int8_t> sign(size_t(vd[0]) * vd[1] * vd[2]);
+    std::vector<float> value(size_t(vd[0]) * vd[1] * vd[2]);
     detail::parallelFor(tbb::blocked_range<int>(0, vd[2]), [&](const tbb::blocked_range<int>& r) {
         auto acc = fine.getConstAccessor();
         for (int z = r.begin(); z != r.end(); ++z)
             for (int y = 0; y < vd[1]; ++y)
-                for (int x = 0; x < vd[0]; ++x) {
-                    const float v = acc.getValue(lo + openvdb::Coord(x, y, z));
-                    sign[(size_t(z) * vd[1] + y) * vd[0] + x] = v > 0.0f ? 1 : v < 0.0f ? -1 : 0;
-                }
+                for (int x = 0; x < vd[0]; ++x)
+                    value[(size_t(z) * vd[1] + y) * vd[0] + x] = acc.getValue(lo + openvdb::Coord(x, y, z));
     });
     std::vector<CellDistance::State> states(size_t(dims[0]) * dims[1] * dims[2]);
     detail::parallelFor(tbb::blocked_range<int>(0, dims[2]), [&](const tbb::blocked_range<int>& r) {
@@ -145,10 +201,10 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
                 for (int x = 0; x < dims[0]; ++x) {
                     bool allPos = true, allNeg = true;
                     for (int k = 0; k < 8; ++k) {
-                        const int s = sign[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
-                                               vd[0] + x + (k & 1)];
-                        allPos = allPos && s > 0;
-                        allNeg = allNeg && s < 0;
+                        const float v = value[(size_t(z + (k >> 2)) * vd[1] + y + ((k >> 1) & 1)) *
+                                                  vd[0] + x + (k & 1)];
+                        allPos = allPos && v > 0.0f;
+                        allNeg = allNeg && v < 0.0f;
                     }
                     states[(size_t(z) * dims[1] + y) * dims[0] + x] =
                         allPos ? CellDistance::kClear
@@ -158,9 +214,11 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
     const int origin[3] = {lo.x(), lo.y(), lo.z()};
     // The coarse cells reach as far as the companion's band.
     const int margin = int(std::ceil(double(kFarFieldBand) * kFarFieldFactor / CellTables::kCoarseBlock));
-    return std::make_unique<CellTables>(CellTables{
+    auto tables = std::make_unique<CellTables>(
         CellDistance(origin, dims, states),
-        CellDistance::coarsened(origin, dims, states, CellTables::kCoarseBlock, margin)});
+        CellDistance::coarsened(origin, dims, states, CellTables::kCoarseBlock, margin));
+    slopeTable(fine, lo, dims, value, *tables);
+    return tables;
 }
 
 }  // namespace

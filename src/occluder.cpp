@@ -858,16 +858,24 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     };
     // In the fine band its value alone bounds phi: trilinear values of a distance grid lie
     // within half a voxel of the distance, with a gradient up to ~1.2. The bounds that prove
-    // something (lo outside, hi inside) are the interpolant's own value over that gradient
-    // bound, without the half voxel: the tracer blocks exactly the rays that the interpolated
-    // surface blocks (level_set_search.h tests each cell's cubic), so a ball of |vf| / 1.25
+    // something (lo outside, hi inside) are the interpolant's own value over its gradient
+    // bound around the point (CellTables::gradientBound, at least 1; 1.25 without tables),
+    // without the half voxel: the tracer blocks exactly the rays that the interpolated surface
+    // blocks (level_set_search.h tests each cell's cubic), so a ball of |vf| over the bound
     // around the point lies on the point's side of the surface the rays see. (Until 2026-12-03
     // a depth lost the half voxel, and blocked rays within half a voxel of a thin level set's
     // surface proved nothing: under a two-voxel capsule, random seed 704, coverage spent its
-    // rays on the capsule's shadow and missed another obstacle's small one, 0.7% of F.)
-    auto fineRange = [&](double vf) -> Range {
-        return {vf > 0.0 ? vf / 1.25 : vf * 1.25 - 0.5 * hf,
-                vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / 1.25};
+    // rays on the capsule's shadow and missed another obstacle's small one, 0.7% of F. And the
+    // bound was 1.25 everywhere, measured rather than proven: at a box's edges the interpolant
+    // is steeper.)
+    auto fineRange = [&](double vf, double t) -> Range {
+        double g = 1.25;
+        if (tables) {
+            const openvdb::Vec3d ip = f0 + t * fv;
+            g = std::max(1.0, tables->gradientBound(ip[0], ip[1], ip[2]));
+        }
+        return {vf > 0.0 ? vf / g : vf * 1.25 - 0.5 * hf,
+                vf > 0.0 ? vf * 1.25 + 0.5 * hf : vf / g};
     };
     // Whether the last point's fine value lay inside the fine band: the next point, close by,
     // reads the fine grid first and skips the box and the companion when it is still there.
@@ -875,7 +883,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
     auto companionRange = [&](double t, double need, double vf) -> Range {
         if (nearSurface) {
             vf = fineAt(t);
-            if (std::abs(vf) < bandF) return fineRange(vf);
+            if (std::abs(vf) < bandF) return fineRange(vf, t);
             nearSurface = false;
         }
         const double dBox = boxDistance(boundsFrame, m + t * v, nullptr);
@@ -897,7 +905,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
         if (vf >= bandF) return {std::max({dBox, lo, bandF}), vc + e};
         if (vf <= -bandF) return {vc - e, std::min(vc + e, -bandF)};
         nearSurface = true;
-        return fineRange(vf);
+        return fineRange(vf, t);
     };
     auto range = [&](double t, double need) -> Range {
         double vf = std::numeric_limits<double>::quiet_NaN();
@@ -929,7 +937,7 @@ static double levelSetRadius(LevelSetSlot& slot, const openvdb::FloatGrid& coars
                 if (!(cell < 0.0 && -d >= bandF)) {
                     vf = fineAt(t);
                     if (std::abs(vf) < bandF) {
-                        Range r = fineRange(vf);
+                        Range r = fineRange(vf, t);
                         return {std::max(r.lo, floorLo), std::min(r.hi, ceilHi)};
                     }
                     // Clear beyond the fine band: the band's width (the companion, a voxel or

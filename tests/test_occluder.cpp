@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "cell_distance.h"
 #include "level_set_impl.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
@@ -657,4 +658,65 @@ TEST_CASE("localMinimum: a segment's smallest level-set value near a fraction, n
     Occluder::Query qa = analytic.makeQuery();
     CHECK(std::isnan(qa.localMinimum(0, kCenter - Vec3(0, 1, 1), kCenter + Vec3(0, 1, 1), 0.5,
                                      0.1, nullptr)));
+}
+
+TEST_CASE("a level set's gradient bound holds between points of its band", "[occluder][certificate]") {
+    // CellTables::gradientBound(p) must bound |phi(q) - phi(p)| / |q - p| for the trilinear
+    // interpolant phi and every q within the band's half width of p (what a certificate's ball
+    // around p spans). A sphere's bound stays near 1 (its discs are not shrunk for nothing);
+    // a box's reaches beyond 1.25 at its edges and corners, where a fixed 1.25 was wrong.
+    struct Case {
+        LevelSetPtr ls;
+        double minTop, maxTop;
+        std::vector<Vec3> corners;  // half the points are drawn within 3 voxels of one
+    };
+    const Vec3 lo(-0.31, -0.2, -0.17), hi(0.29, 0.23, 0.21);
+    std::vector<Vec3> corners;
+    for (int k = 0; k < 8; ++k)
+        corners.push_back(Vec3(k & 1 ? hi.x : lo.x, k & 2 ? hi.y : lo.y, k & 4 ? hi.z : lo.z));
+    const Case cases[] = {
+        {makeSphereLevelSet(Vec3(0.1, -0.2, 0.05), 0.37, 0.02, 3.0), 1.0, 1.1, {}},
+        {makeBoxLevelSet(lo, hi, 0.02, 3.0), 1.4, 1.8, corners},
+    };
+    for (const Case& c : cases) {
+        const openvdb::FloatGrid& grid = c.ls->grid();
+        const CellTables* tables = c.ls->cellTables();
+        REQUIRE(tables != nullptr);
+        CHECK(tables->slopeMax >= c.minTop);
+        CHECK(tables->slopeMax <= c.maxTop);
+        auto acc = grid.getConstAccessor();
+        const double h = grid.voxelSize()[0];
+        const double band = 0.98 * double(grid.background());
+        const openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
+        std::mt19937_64 rng(11);
+        auto uni = [&](double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); };
+        int pairs = 0, steep = 0;
+        for (int trial = 0; trial < 200000 && pairs < 40000; ++trial) {
+            openvdb::Vec3d p(uni(box.min().x(), box.max().x()), uni(box.min().y(), box.max().y()),
+                             uni(box.min().z(), box.max().z()));
+            if (!c.corners.empty() && trial % 2 == 0) {
+                const Vec3& k = c.corners[size_t(trial / 2) % c.corners.size()];
+                p = grid.worldToIndex(openvdb::Vec3d(k.x, k.y, k.z)) +
+                    openvdb::Vec3d(uni(-3, 3), uni(-3, 3), uni(-3, 3));
+            }
+            const double vp = sampleTrilinear(acc, p);
+            if (!(std::abs(vp) < band)) continue;
+            const double bound = std::max(1.0, tables->gradientBound(p[0], p[1], p[2]));
+            // q within the half width (in voxels) of p, often very near (steep cells are small).
+            openvdb::Vec3d d(uni(-1, 1), uni(-1, 1), uni(-1, 1));
+            if (d.length() > 1.0 || d.length() == 0.0) continue;
+            d *= std::max(0.02, (band / h) * std::pow(uni(0, 1), 3.0));
+            const openvdb::Vec3d q = p + d;
+            const double vq = sampleTrilinear(acc, q);
+            const double slope = std::abs(vq - vp) / (d.length() * h);
+            ++pairs;
+            if (slope > 1.25 && d.length() > 0.01) ++steep;  // beyond the values' rounding
+            INFO("p " << p << " q " << q << " slope " << slope << " bound " << bound);
+            // The values are floats: a millionth of a voxel of rounding between close points.
+            REQUIRE(std::abs(vq - vp) <= bound * d.length() * h + 1e-6 * h);
+        }
+        CHECK(pairs == 40000);
+        // Only the box has pairs steeper than the old fixed bound (its edges' cells).
+        if (c.minTop > 1.25) CHECK(steep > 0);
+    }
 }
