@@ -289,9 +289,13 @@ TEST_CASE("tangent mode: a box's corners from the tangent lines, in fewer rays",
         // threshold a quarter of the paper's instead of a sixteenth; 20.0 and 17.3 rays while
         // coverage trusted discs that exclude only the other obstacles next to a located
         // contour, see test_coverage.cpp.) Fewer rays than arcs at under half its error.
+        // (Analytic 66.2 rays at 0.062% until 2026-12-03, when a long arc whose shoulder ray's
+        // tangent turns away from its chord began to be refined: a piece of the silhouette
+        // that bends at two of the box's corners is not one conic. Now 69.8 rays at 0.058%,
+        // level set 55.4 at 0.18%: under 0.95 of the arcs mode's rays at a sixth of its error.)
         CHECK(errT / unocc < 0.005);
         CHECK(errT < 0.5 * errP);
-        CHECK(raysT < 0.9 * raysP);
+        CHECK(raysT < 0.95 * raysP);
     }
 }
 

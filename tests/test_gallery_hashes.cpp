@@ -152,17 +152,21 @@ struct GalleryCase {
 // coverage rays; the rest unchanged). The default rows of default, table1 and csg the same
 // session when that gradient bound became each block's own, proven from the cells' values
 // (CellTables::gradientBound: 1.01-1.07 on curved level sets, up to 1.73 at a box's corners,
-// where 1.25 was a measurement; other discs, so other coverage rays; the rest unchanged).
+// where 1.25 was a measurement; other discs, so other coverage rays; the rest unchanged). The
+// default rows of table1, csg and bunny on 2026-12-03 (seventeenth session) when a tangent arc
+// longer than 16 lattice units whose visible shoulder ray's tangent line turns more than 0.05
+// from its chord began to be checked and refined instead (contour_tangent.cpp, tangentArc: a
+// silhouette that bends twice between two vertices is not one conic; the rest unchanged).
 const GalleryCase kCases[] = {
     {"default", "", "53ed6a5206d69fde"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
     {"default", "--aci-mode arcs", "d91ad70973714e77"},
     {"default", "--method mc-solid-angle --samples 64", "9f65a036334a4ec9"},
-    {"table1", "", "0c7f631542b07fee"},
+    {"table1", "", "fa69d9fdfcaa55cd"},
     {"table1", "--aci-mode paper", "db1c7a22a827fa07"},
-    {"csg", "", "6e1d4bf55b09a206"},
+    {"csg", "", "faa7af3316c17d05"},
     {"vdb_tool", "", "4f176e18758cbd44"},
-    {"bunny", "", "1cb74417a957f219"},
+    {"bunny", "", "18d9f80bf8f253a9"},
     {"fog", "", "25c44fb12564a597"},
 };
 
