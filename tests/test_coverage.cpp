@@ -620,6 +620,16 @@ FieldCase againstStratified(const Scene& scene, const Occluder& occ, Occluder::Q
     return out;
 }
 
+// A ground point of a scene in tests/scenes/: the default's error, relative to the unoccluded
+// form factor, against 2^18 stratified rays at most `limit`, and within the default's bound.
+void checkGroundPoint(const std::string& file, const Vec3& point, double limit) {
+    SceneUnderTest t(file);
+    const FieldCase c = againstStratified(t.scene, t.occ, t.q, point);
+    CAPTURE(file, c.aci.formFactor, c.aci.errorBound, c.full, c.error);
+    CHECK(std::abs(c.error) <= limit);
+    CHECK(std::abs(c.error) * c.full <= c.aci.errorBound);
+}
+
 TEST_CASE("tangent mode: contour points where a level set's rays find its surface",
           "[aci][coverage]") {
     // Rays see a level set's trilinear zero crossing; the tangent mode's Newton steps
@@ -728,11 +738,7 @@ TEST_CASE("a small shadow found next to a thin level set's contact shadow (rando
     // its whole allowance (and the escalation's) on the capsule's shadow, the blob went
     // unseen and F came out 0.7% of itself too bright (inside its bound of 0.089). With the
     // interpolant's own depth (the tracer blocks what it blocks): -0.07%, bound 0.024.
-    SceneUnderTest t("random_seed704.json");
-    const FieldCase c = againstStratified(t.scene, t.occ, t.q, Vec3(0.614032207, -0.349152576, 0.0));
-    CAPTURE(c.aci.formFactor, c.aci.errorBound, c.full, c.error);
-    CHECK(std::abs(c.error) <= 0.001);
-    CHECK(std::abs(c.error) * c.full <= c.aci.errorBound);
+    checkGroundPoint("random_seed704.json", Vec3(0.614032207, -0.349152576, 0.0), 0.001);
 }
 
 TEST_CASE("tangent arcs: a level-set box's silhouette that bends twice between two vertices "
@@ -745,11 +751,7 @@ TEST_CASE("tangent arcs: a level-set box's silhouette that bends twice between t
     // cut up to three lattice units into the shadow: F 0.45% of itself too bright (inside its
     // bound). The visible shoulder ray's own tangent line, which a conic would have parallel to
     // the chord, turned away from it: such a piece is now checked and refined as in section 3.2.
-    SceneUnderTest t("random_seed720.json");
-    const FieldCase c = againstStratified(t.scene, t.occ, t.q, Vec3(1.637235117, -2.072441198, 0.0));
-    CAPTURE(c.aci.formFactor, c.aci.errorBound, c.full, c.error);
-    CHECK(std::abs(c.error) <= 0.0005);
-    CHECK(std::abs(c.error) * c.full <= c.aci.errorBound);
+    checkGroundPoint("random_seed720.json", Vec3(1.637235117, -2.072441198, 0.0), 0.0005);
 }
 
 TEST_CASE("tangent arcs integrated as parabolic pieces: a sphere's penumbra is not too bright",
