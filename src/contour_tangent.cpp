@@ -325,15 +325,24 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     if (a.obstacle != b.obstacle && a.obstacle != kHorizonContour &&
         b.obstacle != kHorizonContour)
         return false;
-    const Vec3 ta = glm::cross(a.plane, lightNormal), tb = glm::cross(b.plane, lightNormal);
-    const double la = glm::length(ta), lb = glm::length(tb);
-    if (la < 1e-6 || lb < 1e-6) return false;
-    const Vec3 ua = ta / la, ub = tb / lb;
+    // The unit direction of the line a grazing plane cuts on the light (false when the plane
+    // lies along the light), and the sine of such a line's angle to the chord.
+    auto lineOnLight = [&](const Vec3& plane, Vec3& u) {
+        const Vec3 t = glm::cross(plane, lightNormal);
+        const double n = glm::length(t);
+        if (n < 1e-6) return false;
+        u = t / n;
+        return true;
+    };
+    Vec3 ua, ub;
+    if (!lineOnLight(a.plane, ua) || !lineOnLight(b.plane, ub)) return false;
     const Vec3 chord = b.c - a.c;
     const double len = glm::length(chord);
     if (len == 0.0) return false;
-    const double sinA = glm::dot(glm::cross(ua, chord / len), lightNormal);
-    const double sinB = glm::dot(glm::cross(ub, chord / len), lightNormal);
+    auto turnFromChord = [&](const Vec3& u) {
+        return glm::dot(glm::cross(u, chord / len), lightNormal);
+    };
+    const double sinA = turnFromChord(ua), sinB = turnFromChord(ub);
     constexpr double kStraight = 0.01;  // |sin| of the tangents' angle to the chord
     if (std::abs(sinA) < kStraight && std::abs(sinB) < kStraight) {
         arc.straight = true;
@@ -442,12 +451,11 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     constexpr double kShoulderSpan = 16.0;  // lattice units of chord
     if (l > 0.02 && l < 0.98 && len > kShoulderSpan * unit) {
         for (const LatticePoint& sq : {shoulders[1], shoulders[0]}) {
-            if (peek(sq) != kVisible || untrustedTangent(sq)) continue;
-            const Vec3 ts = glm::cross(grazingPlane(sq, m + l * mk), lightNormal);
-            const double ls = glm::length(ts);
-            if (ls < 1e-6) continue;
-            const double turn = glm::dot(glm::cross(ts / ls, chord / len), lightNormal);
-            if (std::abs(turn) > kShoulderTurn) return false;
+            Vec3 us;
+            if (peek(sq) != kVisible || untrustedTangent(sq) ||
+                !lineOnLight(grazingPlane(sq, m + l * mk), us))
+                continue;
+            if (std::abs(turnFromChord(us)) > kShoulderTurn) return false;
             break;
         }
     }
