@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.h"
 #include "support/exact_shadow.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/level_set.h"
@@ -79,7 +80,9 @@ void print(const char* scene, const char* occluder, const char* setting, const R
 }  // namespace
 
 int main(int argc, char** argv) {
-    const int count = argc > 1 ? std::atoi(argv[1]) : 400;
+    bench::helpIfAsked(argc, argv,
+                       "usage: bench_aci [points-per-line (default 400) [setting-filter]]");
+    const int count = argc > 1 ? int(bench::positiveArg("bench_aci", argv[1], "points-per-line")) : 400;
     RectLight light;
     light.corner = Vec3(-1, -1, 4);
     light.edgeU = Vec3(0, 2, 0);

@@ -23,6 +23,25 @@ namespace bench {
     std::exit(2);
 }
 
+/// For a benchmark that takes positional arguments only: prints `usage` and exits with 0 when
+/// the first word is -h or --help.
+inline void helpIfAsked(int argc, char** argv, const char* usage) {
+    if (argc > 1 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
+        std::printf("%s\n", usage);
+        std::exit(0);
+    }
+}
+
+/// A positional count or size: the whole word a number of at least 1, else failUsage naming
+/// `what` (a benchmark of 0 segments prints nothing worth reading).
+inline double positiveArg(const char* program, const char* word, const char* what) {
+    char* end = nullptr;
+    const double v = std::strtod(word, &end);
+    if (end == word || *end != '\0' || !(v >= 1.0))
+        failUsage(program, std::string(what) + ": '" + word + "' is not a number of at least 1");
+    return v;
+}
+
 /// One option of a benchmark: its name and what it sets. An int, double or string target takes
 /// the next word (std::atoi, std::atof, as is); a flag takes none and runs its action.
 struct Option {

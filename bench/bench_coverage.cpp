@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.h"
 #include "support/exact_shadow.h"
 #include "support/paper_scene.h"
 #include "penumbra/contour_integrator.h"
@@ -144,9 +145,15 @@ void printByKind(const Totals& t) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    const int scenes = argc > 1 ? std::atoi(argv[1]) : 40;
-    const int points = argc > 2 ? std::atoi(argv[2]) : 20;
+    bench::helpIfAsked(argc, argv,
+                       "usage: bench_coverage [scenes (default 40) [points-per-scene (default 20) "
+                       "[analytic|levelset]]]");
+    const int scenes = argc > 1 ? int(bench::positiveArg("bench_coverage", argv[1], "scenes")) : 40;
+    const int points =
+        argc > 2 ? int(bench::positiveArg("bench_coverage", argv[2], "points-per-scene")) : 20;
     const std::string only = argc > 3 ? argv[3] : "";
+    if (!only.empty() && only != "analytic" && only != "levelset")
+        bench::failUsage("bench_coverage", "kind: '" + only + "' is neither analytic nor levelset");
     const std::vector<Case> cases = makeCases(scenes, points);
     std::printf("%d random scenes of 1-8 spheres, %d receiver points each; light 2 x 2 at height 4; "
                 "errors relative to the unoccluded form factor, against exact answers.\n",

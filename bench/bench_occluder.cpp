@@ -37,6 +37,7 @@
 #include <random>
 #include <vector>
 
+#include "bench_common.h"
 #include "level_set_impl.h"
 #include "penumbra/level_set.h"
 #include "penumbra/occluder.h"
@@ -220,7 +221,11 @@ std::vector<Segment> randomSegments(size_t n, double zFrom, double zTo, double h
 }  // namespace
 
 int main(int argc, char** argv) {
-    const size_t n = argc > 1 ? size_t(std::atof(argv[1])) : size_t(1000000);
+    bench::helpIfAsked(argc, argv,
+                       "usage: bench_occluder [segments (default 1e6)] [bunny scene (default "
+                       "vdb_scenes/bunny.json)]");
+    const size_t n =
+        argc > 1 ? size_t(bench::positiveArg("bench_occluder", argv[1], "segments")) : 1000000;
     const std::string bunnyScene = argc > 2 ? argv[2] : "vdb_scenes/bunny.json";
     const int repeats = 5;
 
