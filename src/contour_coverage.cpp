@@ -12,12 +12,20 @@
 namespace penumbra {
 
 // Coverage: a ray to the light's centre; true when its disc covers the whole light (which
-// is then wholly visible or wholly hidden, and integrated).
+// is then wholly visible or wholly hidden, and integrated). No ray when no obstacle's footprint
+// meets the light.
 bool ContourIntegrator::Lattice::wholeLight() {
     const LatticePoint centre{Na / 2, Nb / 2};
     const Vec3 pc = pointOf(centre);
     for (const Vec3& q : light.polygon())
         if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
+    if (outsideFootprints(0.0, 0.0, Na, Nb)) {
+        const size_t idx = index(centre);
+        scratch.mStamp[idx] = scratch.mGeneration;
+        scratch.mSample[idx] = kVisible;
+        emitWhole();
+        return true;
+    }
     wantWhole = true;
     const bool vis = visible(centre, true);
     wantWhole = false;
@@ -30,18 +38,54 @@ bool ContourIntegrator::Lattice::wholeLight() {
         for (const Vec3& q : light.polygon())
             if (!(glm::length(q - pc) < cert.radius)) return false;
     }
-    if (vis) {
-        if (light.shape == LightShape::Disc) {
-            const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
-            const EdgeDerivative e = discArcG(light, start, start, rec.point);
-            g += e.g;
-            if (self.mSettings.gradient) dg += e.dg;
-        } else {
-            const std::vector<Vec3> poly = light.polygon();
-            for (size_t i = 0; i < poly.size(); ++i) emit(poly[i], poly[(i + 1) % poly.size()]);
-        }
-    }
+    if (vis) emitWhole();
     return true;
+}
+
+// Integrates the whole light (every point of it visible).
+void ContourIntegrator::Lattice::emitWhole() {
+    if (light.shape == LightShape::Disc) {
+        const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
+        const EdgeDerivative e = discArcG(light, start, start, rec.point);
+        g += e.g;
+        if (self.mSettings.gradient) dg += e.dg;
+    } else {
+        const std::vector<Vec3> poly = light.polygon();
+        for (size_t i = 0; i < poly.size(); ++i) emit(poly[i], poly[(i + 1) % poly.size()]);
+    }
+}
+
+// The footprints of the obstacles the query looks at (light_footprint.h); `footprints` false
+// when they are unbounded.
+void ContourIntegrator::Lattice::findFootprints() {
+    footprints = scratch.mFootprints.build(query.occluder(), query.restriction(), origin, light);
+}
+
+// Whether the lattice rectangle [a0, a1] x [b0, b1] lies outside every footprint.
+bool ContourIntegrator::Lattice::outsideFootprints(double a0, double b0, double a1, double b1) const {
+    return footprints && scratch.mFootprints.outside(a0 / Na, b0 / Nb, a1 / Na, b1 / Nb);
+}
+
+// Whether the footprints prove the cell (a0, b0, side `size`): it lies outside every one, so
+// it is visible, and the last pass's contour says so all over it (every leaf holding its centre
+// is visible there, farther than the cell's reach from its contour pieces). A cell outside the
+// footprints that the contour calls hidden (a window between two obstacles' footprints inside
+// a hidden square, say) is left to coverage, whose ray there contradicts the contour.
+bool ContourIntegrator::Lattice::footprintProves(double a0, double b0, double size) const {
+    if (!outsideFootprints(a0, b0, a0 + size, b0 + size)) return false;
+    const LatticePoint q{static_cast<int>(std::floor(a0 + 0.5 * size)),
+                         static_cast<int>(std::floor(b0 + 0.5 * size))};
+    const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
+    const double reach = size * cellReach;
+    bool held = false;
+    const bool hidden = forLeavesHolding(q, [&](uint32_t i) {
+        held = true;
+        const Leaf& leaf = scratch.mLeaves[i];
+        if (leaf.type != 2) return leaf.type != 1;
+        double best;
+        return nearestSide(leaf, c, best) != 1 || !(best > reach);
+    });
+    return held && !hidden;
 }
 
 // Form factor of the light's whole frame, for bounds.
@@ -145,6 +189,7 @@ double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segmen
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
+    if (footprintProves(a0, b0, size)) return;  // visible, as the contour says
     const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     if (cellInDisc(a0, b0, size, c)) return;
     if (size > minSize) {

@@ -104,6 +104,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     perUnitA = Na * glm::length(l.edgeV) / cross;
     perUnitB = Nb * glm::length(l.edgeU) / cross;
     if (s.mSettings.coverage) {
+        findFootprints();
         const size_t buckets = static_cast<size_t>(pa) * pb;
         for (auto* v : {&scratch.mDiscBuckets, &scratch.mSegBuckets, &scratch.mLeafBuckets}) {
             if (v->size() < buckets) v->resize(buckets);

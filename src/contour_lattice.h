@@ -24,6 +24,7 @@
 #include <limits>
 #include <vector>
 
+#include "light_footprint.h"
 #include "penumbra/contour_integrator.h"
 
 namespace penumbra {
@@ -161,6 +162,7 @@ struct ContourIntegrator::Scratch {
     std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
     std::vector<Certificate> mCert;  // coverage: each sample's certificate
     std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
+    LightFootprints mFootprints;  // coverage: the obstacles' footprints on the light
     // Coverage's queue: (key, index into mUncovered), a max-heap whose keys may be stale, but
     // never low (nextCoverageSample).
     std::vector<std::pair<double, uint32_t>> mCoverageHeap;
@@ -216,6 +218,9 @@ struct ContourIntegrator::Lattice {
     std::vector<LightEdge> cuts;
     bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
     bool mScanned = false;  // coverage: this pass's leaves are scanned for uncovered cells
+    // Coverage: scratch.mFootprints bound every obstacle the query looks at (false when one
+    // reaches behind the ray origin, whose projection is unbounded: none is then used).
+    bool footprints = false;
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again
@@ -335,10 +340,14 @@ struct ContourIntegrator::Lattice {
 
     // ----- Coverage and the error bound (contour_coverage.cpp) -----
     bool wholeLight();
+    void emitWhole();
     double wholeFormFactor() const;
     bool cellInDisc(double a0, double b0, double size, const Vec3& centre) const;
     bool mayHold(const Disc& d, double dist, double reach) const;
     bool cellOutside(double a0, double b0, double size) const;
+    void findFootprints();
+    bool outsideFootprints(double a0, double b0, double a1, double b1) const;
+    bool footprintProves(double a0, double b0, double size) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
     // How far from a contour segment coverage looks at it: its gaps (a cell within coverageGap x
     // epsilon of a piece's strip is near proven ground) and uncoveredCells' final test (within

@@ -142,6 +142,36 @@ TEST_CASE("coverage: a small shadow inside one first-level square, touching no c
     CHECK(worstDefault < 0.005);
 }
 
+TEST_CASE("coverage: a window between four obstacles' shadows inside a hidden first-level square",
+          "[aci][coverage][footprint]") {
+    // A square frame of four analytic boxes halfway to the light: their shadows on the light
+    // hide the first-level square [0, 1] x [0, 1] all round, its four corners too, and leave a
+    // window about [0.3, 0.7] x [0.3, 0.7] in its middle, outside every obstacle's footprint.
+    // The pass sees a hidden square; coverage's rays around the window find it. (The
+    // footprints prove the window visible, but a cell they prove counts as covered only where
+    // the contour says visible too: a window no ray has seen is not covered ground.)
+    const RectLight light = test::paperLight();
+    const double z0 = 1.95, z1 = 2.05;
+    Occluder occ({AnalyticBox{Vec3(-0.05, -0.05, z0), Vec3(0.55, 0.15, z1)},
+                  AnalyticBox{Vec3(-0.05, 0.35, z0), Vec3(0.55, 0.55, z1)},
+                  AnalyticBox{Vec3(-0.05, 0.15, z0), Vec3(0.15, 0.35, z1)},
+                  AnalyticBox{Vec3(0.35, 0.15, z0), Vec3(0.55, 0.35, z1)}});
+    Occluder::Query q = occ.makeQuery();
+    const Receiver r{Vec3(0.0, 0.0, 0.0), kUp};
+    McSettings mc;
+    mc.samples = 1 << 18;
+    const double ref = monteCarloReference(r, light, q, mc).formFactor;
+    const double full = unoccludedFormFactor(light, r);
+    const Estimate e = contourIntegral(r, light, q);
+    const Estimate paper = contourIntegral(r, light, q, modeSettings(AciMode::Paper));
+    CAPTURE(ref, full, e.formFactor, e.errorBound, paper.formFactor);
+    // The paper's nine rays miss the window (about 4% of the light's form factor).
+    CHECK(paper.formFactor < ref - 0.02 * full);
+    // Within the reference's noise (2^18 rays: under 0.1% of the unoccluded form factor).
+    CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 0.001 * full);
+    CHECK(std::abs(e.formFactor - ref) <= 0.005 * full);
+}
+
 TEST_CASE("coverage: a torus' window inside a hidden first-level square", "[aci][coverage]") {
     // A level-set torus seen from below: its hole is a window of light inside its shadow whose
     // disc on the light holds no first-level corner (the four corners around it are hidden).
@@ -422,15 +452,16 @@ TEST_CASE("coverage: receivers on an analytic box's face and on an analytic sphe
     CHECK(worst <= 0.005);
 }
 
-TEST_CASE("coverage: a point whose first ray's disc covers the light needs one ray",
+TEST_CASE("coverage: a point whose first ray's disc covers the light needs one ray, one no "
+          "obstacle's footprint reaches none",
           "[aci][coverage]") {
     const RectLight light = test::paperLight();
     Occluder occ({AnalyticSphere{Vec3(0.0, 0.0, 1.2), 0.6}});
     Occluder::Query q = occ.makeQuery();
-    // Far to the side: every point of the ray to the light's centre is far from the sphere.
+    // Far to the side: the sphere's footprint on the light (its shadow cone) misses the light.
     const Receiver lit{Vec3(-6.0, 6.0, 0.0), kUp};
     const Estimate a = contourIntegral(lit, light, q);
-    CHECK(a.counts.shadowRays() == 1);
+    CHECK(a.counts.shadowRays() == 0);
     CHECK(a.formFactor == Approx(unoccludedFormFactor(light, lit)).margin(1e-12));
     CHECK(a.errorBound == 0.0);
     // Right under the sphere: the central ray goes 0.6 deep at 0.3 of the way, a disc of 2.
@@ -444,6 +475,24 @@ TEST_CASE("coverage: a point whose first ray's disc covers the light needs one r
     applyAciMode(paper, AciMode::Paper);
     CHECK(contourIntegral(lit, light, q, paper).counts.shadowRays() == 9);
     CHECK(contourIntegral(umbra, light, q, paper).counts.shadowRays() == 9);
+
+    // A small light seen whole through a level-set torus' hole: the torus' footprint covers
+    // the light, and the ray to its centre, 0.45 from the tube at a quarter of the way,
+    // proves a disc that covers it.
+    const std::string json = R"({
+      "lights": [{"corner": [-0.2, -0.2, 4], "edge_u": [0, 0.4, 0], "edge_v": [0.4, 0, 0]}],
+      "obstacles": [{"type": "torus", "center": [0, 0, 1], "major_radius": 0.6,
+                     "minor_radius": 0.15, "axis": [0, 0, 1]}],
+      "level_set": {"voxel_size": 0.01, "half_width": 3}
+    })";
+    const Scene scene = parseScene(json, "torus.json", ".");
+    const Occluder torus = scene.makeOccluder();
+    Occluder::Query tq = torus.makeQuery();
+    const Estimate c = contourIntegral(umbra, scene.lights[0], tq);
+    CHECK(c.counts.shadowRays() == 1);
+    REQUIRE(unoccludedFormFactor(scene.lights[0], umbra) > 0.0);
+    CHECK(c.formFactor == Approx(unoccludedFormFactor(scene.lights[0], umbra)).margin(1e-12));
+    CHECK(c.errorBound == 0.0);
 }
 
 TEST_CASE("coverage: a point that receives nothing has a bound of 0, not none",

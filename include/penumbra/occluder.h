@@ -128,6 +128,9 @@ public:
     /// A box around what of obstacle i can block a ray (within bounds(i); level sets: the
     /// inside of the band, grown by 1.25 voxels).
     const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
+    /// A sphere around the same (centre and radius; radius 0 with an empty solidBounds(i)).
+    const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
+    double solidRadius(size_t i) const { return mSolid[i].radius; }
     /// Smallest voxel size over the level sets, 0 when there are none.
     double minVoxelSize() const { return mMinVoxel; }
     /// Obstacle i's voxel size: 0 for an analytic shape.
@@ -246,6 +249,9 @@ public:
     /// a shaft-culling candidate list; nullptr restores every obstacle. The list must outlive its
     /// use.
     void restrictTo(const std::vector<uint32_t>* candidates) { mCandidates = candidates; }
+    /// The obstacles the following queries look at (the restriction, narrowed if it is):
+    /// nullptr for every obstacle.
+    const std::vector<uint32_t>* restriction() const { return mCandidates; }
 
     /// Narrows the following queries to the obstacles of the current restriction that
     /// `pyramid` may meet, until the matching widen(); calls nest. Returns how many remain.

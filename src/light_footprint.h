@@ -1,0 +1,43 @@
+// Where on a light a shadow ray can meet the obstacles (certified coverage, docs/estimator.md):
+// a segment from the ray origin M to light point Q that meets an obstacle meets its solid box
+// and its solid sphere (Occluder::solidBounds, solidCentre, solidRadius), so Q lies in both
+// their central projections from M onto the light's plane. Outside every obstacle's footprint a
+// light point is visible, proven without a ray.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "penumbra/form_factor.h"
+#include "penumbra/occluder.h"
+
+namespace penumbra {
+
+class LightFootprints {
+public:
+    /// The footprints, seen from `origin`, of the obstacles `only` lists (every obstacle of
+    /// `occ` when null) on `light`. False, with none kept, when a solid box reaches level with
+    /// or behind the origin (seen from the light; an obstacle the receiver sits on, say): its
+    /// projection is unbounded.
+    bool build(const Occluder& occ, const std::vector<uint32_t>* only, const Vec3& origin,
+               const RectLight& light);
+    /// Whether the rectangle [u0, u1] x [v0, v1] of the light's (u, v) coordinates lies outside
+    /// every footprint (a margin far above rounding; a point when u0 = u1 and v0 = v1).
+    bool outside(double u0, double v0, double u1, double v1) const;
+private:
+    struct Footprint {
+        double u[8], v[8];  // the box's projected hull, counter-clockwise
+        int n = 0;
+        double u0, v0, u1, v1;  // the hull's bounding box
+        Vec3 axis;              // unit direction from the origin to the sphere's centre
+        double spread;          // the sphere's angular radius from the origin (pi: all)
+    };
+    bool inCone(const Footprint& f, double u0, double v0, double u1, double v1) const;
+
+    std::vector<Footprint> mFootprints;
+    const RectLight* mLight = nullptr;
+    Vec3 mOrigin{0.0};
+    double mToLight = 0.0;  // the origin's signed distance to the light's plane
+};
+
+}  // namespace penumbra
