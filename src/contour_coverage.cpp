@@ -13,17 +13,20 @@ namespace penumbra {
 
 // Coverage: a ray to the light's centre; true when its disc covers the whole light (which
 // is then wholly visible or wholly hidden, and integrated). No ray when no obstacle's footprint
-// meets the light.
+// meets the light, or when one obstacle's kernel hides all of it.
 bool ContourIntegrator::Lattice::wholeLight() {
     const LatticePoint centre{Na / 2, Nb / 2};
     const Vec3 pc = pointOf(centre);
     for (const Vec3& q : light.polygon())
         if (above(q) <= 0.0) return false;  // the horizon cuts it: the passes handle that
-    if (outsideFootprints(0.0, 0.0, Na, Nb)) {
+    const bool lit = outsideFootprints(0.0, 0.0, Na, Nb);
+    if (lit || scratch.mFootprints.hidden(0.0, 0.0, 1.0, 1.0)) {
+        // No obstacle's footprint meets the light (all of it lit), or one's kernel hides all
+        // of it: no ray. The centre's sample records the answer for the caller.
         const size_t idx = index(centre);
         scratch.mStamp[idx] = scratch.mGeneration;
-        scratch.mSample[idx] = kVisible;
-        emitWhole();
+        scratch.mSample[idx] = lit ? kVisible : 0.0f;
+        if (lit) emitWhole();
         return true;
     }
     wantWhole = true;
@@ -66,26 +69,36 @@ bool ContourIntegrator::Lattice::outsideFootprints(double a0, double b0, double 
     return footprints && scratch.mFootprints.outside(a0 / Na, b0 / Nb, a1 / Na, b1 / Nb);
 }
 
-// Whether the footprints prove the cell (a0, b0, side `size`): it lies outside every one, so
-// it is visible, and the last pass's contour says so all over it (every leaf holding its centre
-// is visible there, farther than the cell's reach from its contour pieces). A cell outside the
-// footprints that the contour calls hidden (a window between two obstacles' footprints inside
-// a hidden square, say) is left to coverage, whose ray there contradicts the contour.
+// Whether the footprints prove the cell (a0, b0, side `size`): it lies outside every one (so it
+// is visible) or inside some obstacle's kernel (so it is hidden), and the last pass's contour
+// says the same all over it (every leaf that holds its centre is a square of that answer, or a
+// contour square whose nearest piece has the cell on that side, farther than the cell's reach).
+// A cell the footprints prove but the contour contradicts (a window between two obstacles'
+// footprints inside a square the pass found hidden, say) is left to coverage, whose ray there
+// contradicts the contour: proven ground that the contour gets wrong would be an error outside
+// the bound.
 bool ContourIntegrator::Lattice::footprintProves(double a0, double b0, double size) const {
-    if (!outsideFootprints(a0, b0, a0 + size, b0 + size)) return false;
+    int answer;
+    if (outsideFootprints(a0, b0, a0 + size, b0 + size)) {
+        answer = 1;
+    } else if (scratch.mFootprints.hidden(a0 / Na, b0 / Nb, (a0 + size) / Na, (b0 + size) / Nb)) {
+        answer = 0;
+    } else {
+        return false;
+    }
     const LatticePoint q{static_cast<int>(std::floor(a0 + 0.5 * size)),
                          static_cast<int>(std::floor(b0 + 0.5 * size))};
     const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     const double reach = size * cellReach;
     bool held = false;
-    const bool hidden = forLeavesHolding(q, [&](uint32_t i) {
+    const bool other = forLeavesHolding(q, [&](uint32_t i) {
         held = true;
         const Leaf& leaf = scratch.mLeaves[i];
-        if (leaf.type != 2) return leaf.type != 1;
+        if (leaf.type != 2) return leaf.type != answer;
         double best;
-        return nearestSide(leaf, c, best) != 1 || !(best > reach);
+        return nearestSide(leaf, c, best) != answer || !(best > reach);
     });
-    return held && !hidden;
+    return held && !other;
 }
 
 // Form factor of the light's whole frame, for bounds.
@@ -189,7 +202,7 @@ double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segmen
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize) const {
     if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
-    if (footprintProves(a0, b0, size)) return;  // visible, as the contour says
+    if (footprintProves(a0, b0, size)) return;  // what the contour says, proven
     const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     if (cellInDisc(a0, b0, size, c)) return;
     if (size > minSize) {

@@ -24,6 +24,11 @@ public:
     /// Whether the rectangle [u0, u1] x [v0, v1] of the light's (u, v) coordinates lies outside
     /// every footprint (a margin far above rounding; a point when u0 = u1 and v0 = v1).
     bool outside(double u0, double v0, double u1, double v1) const;
+    /// Whether the rectangle lies inside the projection of some obstacle's kernel (a ball or an
+    /// analytic box that blocks every segment meeting it: Occluder::kernelBalls, kernelBox)
+    /// lying wholly between the origin and the light's plane: every point of it is hidden.
+    /// Kernels are kept whatever build() returned.
+    bool hidden(double u0, double v0, double u1, double v1) const;
 private:
     struct Footprint {
         double u[8], v[8];  // the box's projected hull, counter-clockwise
@@ -32,9 +37,23 @@ private:
         Vec3 axis;              // unit direction from the origin to the sphere's centre
         double spread;          // the sphere's angular radius from the origin (pi: all)
     };
+    struct Kernel {
+        bool ball = true;
+        Vec3 axis{0.0};  // a ball: unit direction from the origin to its centre
+        double spread = 0.0;  // its angular radius
+        double u[8], v[8];  // a box: its projected hull, counter-clockwise
+        int n = 0;
+    };
     bool inCone(const Footprint& f, double u0, double v0, double u1, double v1) const;
+    // The rectangle's directions from the origin: the one to its centre, and the cosine of the
+    // largest angle from it to a corner's.
+    void directions(double u0, double v0, double u1, double v1, Vec3& towards, double& cosReach) const;
+    // The hull of points (u[i], v[i]), i < 8, counter-clockwise into (hu, hv); its size.
+    static int hull(const double u[8], const double v[8], double hu[8], double hv[8]);
 
     std::vector<Footprint> mFootprints;
+    std::vector<Kernel> mKernels;
+    bool mBounded = false;
     const RectLight* mLight = nullptr;
     Vec3 mOrigin{0.0};
     double mToLight = 0.0;  // the origin's signed distance to the light's plane

@@ -237,6 +237,20 @@ struct Occluder::FarField {
     mutable std::unique_ptr<CompanionError> errorValue;
 };
 
+const std::vector<Occluder::KernelBall>& Occluder::kernelBalls(size_t i) const {
+    return mSphereKernels[i];
+}
+
+Box3 Occluder::kernelBox(size_t i) const {
+    if (const auto* x = std::get_if<AnalyticBox>(&mShapes[i])) {
+        Box3 b;
+        b.lo = x->lo;
+        b.hi = x->hi;
+        return b;
+    }
+    return Box3{};
+}
+
 // ---------------------------------------------------------------------------------------------
 // Occluder
 
@@ -271,6 +285,8 @@ void Occluder::add(ObstacleShape shape) {
         solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius()};
         if (b.empty()) solid = {b, Vec3(0.0), 0.0};
     }
+    mSphereKernels.emplace_back();
+    if (const auto* s = std::get_if<AnalyticSphere>(&shape)) mSphereKernels.back().push_back({s->center, s->radius});
     mShapes.push_back(std::move(shape));
     mBounds.push_back(b);
     mSolid.push_back(solid);

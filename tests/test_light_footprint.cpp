@@ -1,8 +1,9 @@
 // Light footprints (src/light_footprint.h): a light point outside every obstacle's footprint
-// must be visible from the ray origin, checked by brute force with real shadow rays on scenes
-// of every obstacle kind (analytic spheres, boxes; level-set cylinders, capsules, tori, spheres,
-// boxes), from receivers on the ground and on the obstacles themselves. The footprints must not
-// be trivial either (most of the light outside them).
+// must be visible from the ray origin, and one inside the projection of an obstacle's kernel
+// hidden, checked by brute force with real shadow rays from ground points on scenes of every
+// obstacle kind (analytic spheres and boxes; level-set spheres, boxes, cylinders, capsules,
+// tori), half the light samples aimed around the obstacles' shadows. Neither may be trivial:
+// most of the light lies outside the footprints, and the kernels prove some of the shadow.
 #include <catch2/catch.hpp>
 
 #include <algorithm>
@@ -21,7 +22,7 @@ using namespace penumbra;
 namespace {
 
 struct Counts {
-    long outside = 0, samples = 0, violations = 0;
+    long outside = 0, hidden = 0, samples = 0, violations = 0;
 };
 
 // Receiver points: on the ground plane z = 0 in [-r, r]^2, facing up.
@@ -57,11 +58,13 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
                 v = std::clamp(around[i].y + spread * gauss(rng), 0.0, 1.0);
             }
             ++counts.samples;
-            if (!fp.outside(u, v, u, v)) continue;
-            ++counts.outside;
-            if (q.occluded(origin, light.point(u, v))) {
+            const bool outside = fp.outside(u, v, u, v), hidden = fp.hidden(u, v, u, v);
+            CHECK_FALSE((outside && hidden));
+            if (!outside && !hidden) continue;
+            (outside ? counts.outside : counts.hidden)++;
+            if (q.occluded(origin, light.point(u, v)) != hidden) {
                 ++counts.violations;
-                CAPTURE(origin, u, v);
+                CAPTURE(origin, u, v, outside, hidden);
                 CHECK(false);
             }
         }
@@ -70,7 +73,7 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
 
 }  // namespace
 
-TEST_CASE("light footprints: every light point outside them is visible", "[aci][coverage][footprint]") {
+TEST_CASE("light footprints: every light point outside them is visible, every one in a kernel's shadow hidden", "[aci][coverage][footprint]") {
     std::mt19937 rng(20261203);
     RectLight light;
     light.corner = Vec3(-1.0, -0.6, 3.0);
@@ -93,11 +96,13 @@ TEST_CASE("light footprints: every light point outside them is visible", "[aci][
         checkScene(occ, scene.lights[0], rng, 300, 64, 3.0, counts);
     }
     WARN("footprints: " << counts.samples << " light samples, " << counts.outside
-                        << " outside every footprint, " << counts.violations << " blocked");
+                        << " outside every footprint, " << counts.hidden << " in a kernel's shadow, "
+                        << counts.violations << " answered otherwise by a ray");
     CHECK(counts.violations == 0);
     // Not trivial: most of these lights lies outside the footprints of obstacles this small.
     CHECK(counts.outside > counts.samples / 2);
     CHECK(counts.outside < counts.samples * 0.95);  // and many samples near the borders
+    CHECK(counts.hidden > counts.samples / 50);      // kernels prove some shadow too
 }
 
 TEST_CASE("light footprints: none from a point an obstacle's solid box reaches behind",

@@ -131,6 +131,17 @@ public:
     /// A sphere around the same (centre and radius; radius 0 with an empty solidBounds(i)).
     const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
     double solidRadius(size_t i) const { return mSolid[i].radius; }
+    /// A ball that blocks every segment meeting it (one that starts outside it).
+    struct KernelBall {
+        Vec3 centre{0.0};
+        double radius = 0.0;
+    };
+    /// Balls inside obstacle i: an analytic sphere itself; none for other kinds. (Level sets
+    /// could offer balls of their cell tables' inside cells: tried, their scan cost a Table 1
+    /// render 17% for no fewer rays; docs/BENCHMARKS.md.)
+    const std::vector<KernelBall>& kernelBalls(size_t i) const;
+    /// An analytic box itself (every segment meeting it is blocked); empty for other kinds.
+    Box3 kernelBox(size_t i) const;
     /// Smallest voxel size over the level sets, 0 when there are none.
     double minVoxelSize() const { return mMinVoxel; }
     /// Obstacle i's voxel size: 0 for an analytic shape.
@@ -161,6 +172,7 @@ private:
         double radius = 0.0;
     };
     std::vector<Solid> mSolid;  // index-aligned with mShapes
+    std::vector<std::vector<KernelBall>> mSphereKernels;  // index-aligned: kernelBalls(i)
     std::vector<double> mVoxel;  // index-aligned with mShapes; 0 if analytic
     double mMinVoxel = 0.0;
     std::vector<Medium> mMedia;
