@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "light_footprint.h"
+#include "support/paper_scene.h"
 #include "penumbra/level_set.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
@@ -107,10 +108,7 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
 
 TEST_CASE("light footprints: none from a point an obstacle's solid box reaches behind",
           "[aci][coverage][footprint]") {
-    RectLight light;
-    light.corner = Vec3(-1.0, -1.0, 4.0);
-    light.edgeU = Vec3(2.0, 0.0, 0.0);
-    light.edgeV = Vec3(0.0, 2.0, 0.0);
+    const RectLight light = test::paperLight();  // 2 x 2 at height 4
     Occluder occ({AnalyticSphere{Vec3(0.0, 0.0, 0.0), 0.5}});
     LightFootprints fp;
     // On the sphere's top: its box reaches below the point.
