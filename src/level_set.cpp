@@ -263,13 +263,10 @@ void LevelSet::findSolid() {
         hi = openvdb::math::maxComponent(hi, box.max().asVec3d());
         any = true;
     }
-    // A point where the trilinear interpolation is <= 0 lies in a cell with a corner <= 0 (the
-    // interpolant is a weighted mean of its cell's corners): within one voxel, along each axis,
-    // of such a voxel's centre (and deep inside voxels, inactive, are enclosed by the band's).
-    // A fiftieth of a voxel more for rounding. (A quarter until 2026-12-03: the footprints of
-    // coverage, docs/estimator.md, reached that much farther past each level set's silhouette;
-    // bench_coverage's level sets took 3.6% more rays.)
-    const double grow = 1.02;
+    // A point where the trilinear interpolation is <= 0 lies in a cell with a corner <= 0:
+    // within one voxel, along each axis, of such a voxel's centre (and deep inside voxels,
+    // inactive, are enclosed by the band's). A quarter voxel more for rounding.
+    const double grow = 1.25;
     if (!any) {
         mSolidWS = mBoundsWS;
         mSolidCentre = 0.5 * (mBoundsWS.lo + mBoundsWS.hi);

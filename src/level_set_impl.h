@@ -35,7 +35,7 @@ class LevelSet {
     const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
     /// What may block a ray: the world box and a sphere (centre, radius) around the active
     /// voxels whose value is <= 0 (the inside of the band, which encloses the inside of the
-    /// surface), grown by 1.02 voxels for the zero crossing between voxel centres. The band's
+    /// surface), grown by 1.25 voxels for the zero crossing between voxel centres. The band's
     /// outside, up to half_width voxels thick, is left out. boundsWS() and its circumscribed
     /// sphere when no active voxel is inside.
     const Box3& solidBoundsWS() const { return mSolidWS; }

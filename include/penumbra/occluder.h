@@ -126,7 +126,7 @@ public:
     /// both meet it.
     bool mayBlockIn(size_t i, const Pyramid& pyramid) const;
     /// A box around what of obstacle i can block a ray (within bounds(i); level sets: the
-    /// inside of the band, grown by 1.02 voxels).
+    /// inside of the band, grown by 1.25 voxels).
     const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
     /// A sphere around the same (centre and radius; radius 0 with an empty solidBounds(i)).
     const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
