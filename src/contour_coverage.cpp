@@ -58,15 +58,15 @@ void ContourIntegrator::Lattice::emitWhole() {
     }
 }
 
-// The footprints of the obstacles the query looks at (light_footprint.h); `footprints` false
-// when they are unbounded.
+// The footprints and kernels of the obstacles the query looks at (light_footprint.h; when a
+// footprint is unbounded, none is used and outsideFootprints() is always false).
 void ContourIntegrator::Lattice::findFootprints() {
-    footprints = scratch.mFootprints.build(query.occluder(), query.restriction(), origin, light);
+    scratch.mFootprints.build(query.occluder(), query.restriction(), origin, light);
 }
 
 // Whether the lattice rectangle [a0, a1] x [b0, b1] lies outside every footprint.
 bool ContourIntegrator::Lattice::outsideFootprints(double a0, double b0, double a1, double b1) const {
-    return footprints && scratch.mFootprints.outside(a0 / Na, b0 / Nb, a1 / Na, b1 / Nb);
+    return scratch.mFootprints.outside(a0 / Na, b0 / Nb, a1 / Na, b1 / Nb);
 }
 
 // Whether the footprints prove the cell (a0, b0, side `size`): it lies outside every one (so it

@@ -218,9 +218,6 @@ struct ContourIntegrator::Lattice {
     std::vector<LightEdge> cuts;
     bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
     bool mScanned = false;  // coverage: this pass's leaves are scanned for uncovered cells
-    // Coverage: scratch.mFootprints bound every obstacle the query looks at (false when one
-    // reaches behind the ray origin, whose projection is unbounded: none is then used).
-    bool footprints = false;
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again

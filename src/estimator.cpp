@@ -97,8 +97,7 @@ Footprint footprintOf(const Box3& media, const Vec3& origin, const RectLight& li
     const double toLight = glm::dot(light.corner - origin, n);
     double u0 = 1e300, v0 = 1e300, u1 = -1e300, v1 = -1e300;
     for (int c = 0; c < 8; ++c) {
-        const Vec3 b((c & 1) ? media.hi.x : media.lo.x, (c & 2) ? media.hi.y : media.lo.y,
-                     (c & 4) ? media.hi.z : media.lo.z);
+        const Vec3 b = media.corner(c);
         const double along = glm::dot(b - origin, n);
         // A corner level with or behind the origin (seen from the light): no bounded projection.
         if (!(along * toLight > 1e-12 * std::abs(toLight) * std::abs(toLight))) return f;

@@ -58,10 +58,6 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         v = uv.y;
         return true;
     };
-    auto corners = [](const Box3& box, int c) {
-        return Vec3((c & 1) ? box.hi.x : box.lo.x, (c & 2) ? box.hi.y : box.lo.y,
-                    (c & 4) ? box.hi.z : box.lo.z);
-    };
     bool bounded = true;
     const size_t count = only ? only->size() : occ.size();
     for (size_t k = 0; k < count; ++k) {
@@ -82,7 +78,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         if (!kb.empty()) {
             double u[8], v[8];
             bool all = true;
-            for (int c = 0; c < 8 && all; ++c) all = project(corners(kb, c), true, u[c], v[c]);
+            for (int c = 0; c < 8 && all; ++c) all = project(kb.corner(c), true, u[c], v[c]);
             if (all) {
                 Kernel ker;
                 ker.ball = false;
@@ -96,7 +92,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         if (box.empty()) continue;  // nothing of it can block
         Footprint f;
         double u[8], v[8];
-        for (int c = 0; c < 8 && bounded; ++c) bounded = project(corners(box, c), false, u[c], v[c]);
+        for (int c = 0; c < 8 && bounded; ++c) bounded = project(box.corner(c), false, u[c], v[c]);
         if (!bounded) continue;
         f.n = hull(u, v, f.u, f.v);
         f.u0 = f.v0 = std::numeric_limits<double>::infinity();

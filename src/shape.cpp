@@ -207,9 +207,7 @@ Box3 transformBox(const Box3& local, const Similarity& t) {
     if (local.empty()) return local;
     Box3 out;
     for (int c = 0; c < 8; ++c) {
-        out.extend(t.apply(Vec3((c & 1) ? local.hi.x : local.lo.x,
-                                (c & 2) ? local.hi.y : local.lo.y,
-                                (c & 4) ? local.hi.z : local.lo.z)));
+        out.extend(t.apply(local.corner(c)));
     }
     return out;
 }

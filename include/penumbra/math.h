@@ -32,6 +32,10 @@ struct Box3 {
         lo = glm::min(lo, b.lo);
         hi = glm::max(hi, b.hi);
     }
+    /// Corner c in 0..7: bit 0 picks hi.x over lo.x, bit 1 hi.y, bit 2 hi.z.
+    Vec3 corner(int c) const {
+        return Vec3((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
+    }
     /// Parameter interval [t0, t1] of the ray o + t d inside the box, clipped to [tMin, tMax];
     /// false when the clipped interval is empty. `invD` is 1/d per axis (may be +-inf).
     bool clipRay(const Vec3& o, const Vec3& invD, double& tMin, double& tMax) const {
