@@ -77,15 +77,14 @@ bool ContourIntegrator::Lattice::outsideFootprints(double a0, double b0, double 
 // footprints inside a square the pass found hidden, say) is left to coverage, whose ray there
 // contradicts the contour: proven ground that the contour gets wrong would be an error outside
 // the bound.
-bool ContourIntegrator::Lattice::footprintProves(double a0, double b0, double size) const {
-    int answer;
-    if (outsideFootprints(a0, b0, a0 + size, b0 + size)) {
-        answer = 1;
-    } else if (scratch.mFootprints.hidden(a0 / Na, b0 / Nb, (a0 + size) / Na, (b0 + size) / Nb)) {
-        answer = 0;
-    } else {
-        return false;
-    }
+// `footprint`: what LightFootprints::classify() says of the cell, found here when
+// kFootprintUnknown (a cell inside one its parent was classified 1 or 0 inherits that answer).
+bool ContourIntegrator::Lattice::footprintProves(double a0, double b0, double size,
+                                                 int& footprint) const {
+    if (footprint == kFootprintUnknown)
+        footprint = scratch.mFootprints.classify(a0 / Na, b0 / Nb, (a0 + size) / Na, (b0 + size) / Nb);
+    const int answer = footprint;
+    if (answer < 0) return false;
     const LatticePoint q{static_cast<int>(std::floor(a0 + 0.5 * size)),
                          static_cast<int>(std::floor(b0 + 0.5 * size))};
     const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
@@ -184,12 +183,17 @@ bool ContourIntegrator::Lattice::cellOutside(double a0, double b0, double size) 
     return inside < 0.0 && nearest > light.radius;
 }
 
-// Distance from a light point to a contour segment.
+// Distance from a light point to a contour segment, and its square (for comparisons).
 double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segment& g) {
+    return std::sqrt(distance2ToSegment(p, g));
+}
+
+double ContourIntegrator::Lattice::distance2ToSegment(const Vec3& p, const Segment& g) {
     const Vec3 d = g.b - g.a;
     const double dd = glm::dot(d, d);
     const double t = dd > 0.0 ? std::clamp(glm::dot(p - g.a, d) / dd, 0.0, 1.0) : 0.0;
-    return glm::length(g.a + t * d - p);
+    const Vec3 e = g.a + t * d - p;
+    return glm::dot(e, e);
 }
 
 // Collects every uncovered cell of side `minSize` in the cell (a0, b0, size) into
@@ -200,33 +204,39 @@ double ContourIntegrator::Lattice::distanceToSegment(const Vec3& p, const Segmen
 // shadow reaching past the piece into the square went unseen (random scene 5: 2% of the form
 // factor off at 1.3 times the bound; regression test in test_coverage.cpp).
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
-                                                double minSize) const {
-    if (shaped && cellOutside(a0, b0, size)) return;  // emits nothing: nothing to prove
-    if (footprintProves(a0, b0, size)) return;  // what the contour says, proven
+                                                double minSize, int footprint, bool checked) const {
+    if (!checked && provenWithoutDiscs(a0, b0, size, footprint)) return;
+    const int inherited = footprint >= 0 ? footprint : kFootprintUnknown;
     const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     if (cellInDisc(a0, b0, size, c)) return;
     if (size > minSize) {
         const double h = 0.5 * size;
         for (int q = 0; q < 4; ++q)
-            uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize);
+            uncoveredCells(a0 + (q & 1) * h, b0 + (q >> 1) * h, h, minSize, inherited);
         return;
     }
     if (!emits(c)) return;
-    if (minSize <= 1.0) {
-        // The final count: a cell within epsilon of a located contour piece belongs to the
-        // piece's strip (its own term of the bound), not to what coverage left open.
-        const double halfDiag = size * cellReach;
-        for (const Segment& g : scratch.mNearSegs)
-            if (!g.border && distanceToSegment(c, g) + halfDiag <= epsWorld) return;
-    }
+    // The nearest located contour piece (its strip, within epsilon of it, its own term of the
+    // bound, is proven ground too).
+    double near2 = std::numeric_limits<double>::infinity();
+    for (const Segment& g : scratch.mNearSegs)
+        if (!g.border) near2 = std::min(near2, distance2ToSegment(c, g));
+    const double near = std::sqrt(near2);
+    // The final count: a cell within epsilon of a located contour piece belongs to the piece's
+    // strip, not to what coverage left open.
+    if (minSize <= 1.0 && near + size * cellReach <= epsWorld) return;
     Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), c};
     for (const Disc& d : scratch.mDiscs) gapTo(u, d, glm::length(u.centre - d.c));
-    // A located contour piece's strip (within epsilon of it, its own term of the bound) is
-    // proven ground too.
-    for (const Segment& g : scratch.mNearSegs)
-        if (!g.border) u.gap = std::min(u.gap, distanceToSegment(c, g) - epsWorld);
+    u.gap = std::min(u.gap, near - epsWorld);
     u.key = coverageKey(u);
     scratch.mUncovered.push_back(u);
+}
+
+// Whether the cell needs no disc: it emits nothing, or the footprints prove what the contour
+// says there.
+bool ContourIntegrator::Lattice::provenWithoutDiscs(double a0, double b0, double size,
+                                                    int& footprint) const {
+    return (shaped && cellOutside(a0, b0, size)) || footprintProves(a0, b0, size, footprint);
 }
 
 // Narrows an uncovered cell's distance to proven ground by one disc, `dist` from its centre.
@@ -276,9 +286,12 @@ void ContourIntegrator::Lattice::gatherNear(int x0, int y0, int s) {
     const Vec3 centre = at(x0 + 0.5 * s, y0 + 0.5 * s);
     const double half = 0.5 * std::max(glm::length(pointOf({x0 + s, y0 + s}) - pointOf({x0, y0})),
                                        glm::length(pointOf({x0 + s, y0}) - pointOf({x0, y0 + s})));
-    auto nearDisc = [&](const Disc& d) { return glm::length(d.c - centre) < d.r + half; };
-    const double segReach = segmentReach();
-    auto nearSeg = [&](const Segment& g) { return distanceToSegment(centre, g) < segReach + half; };
+    auto nearDisc = [&](const Disc& d) {
+        const Vec3 e = d.c - centre;
+        return glm::dot(e, e) < (d.r + half) * (d.r + half);
+    };
+    const double segReach2 = (segmentReach() + half) * (segmentReach() + half);
+    auto nearSeg = [&](const Segment& g) { return distance2ToSegment(centre, g) < segReach2; };
     scratch.mDiscs.clear();
     scratch.mNearSegs.clear();
     // Leaves, and the cells coverage cuts them into, lie in one first-level square.
@@ -407,10 +420,19 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
     auto quarter = [&](size_t i) {
         const Uncovered u = cells[i];
         cells[i].dead = true;
-        gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
         const size_t from = cells.size();
         const double h = 0.5 * u.size;
-        for (int q = 0; q < 4; ++q) uncoveredCells(u.a0 + (q & 1) * h, u.b0 + (q >> 1) * h, h, h);
+        bool gathered = false;
+        for (int q = 0; q < 4; ++q) {
+            const double qa = u.a0 + (q & 1) * h, qb = u.b0 + (q >> 1) * h;
+            int footprint = kFootprintUnknown;
+            if (provenWithoutDiscs(qa, qb, h, footprint)) continue;
+            if (!gathered) {
+                gatherNear(static_cast<int>(u.a0), static_cast<int>(u.b0), static_cast<int>(u.size));
+                gathered = true;
+            }
+            uncoveredCells(qa, qb, h, h, footprint, true);
+        }
         enqueue(from);
     };
     // Done: what stays, for the bound (stale cells are cut down against every disc there).
@@ -425,8 +447,10 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
         cells.clear();
         heap.clear();
         for (const Leaf& leaf : scratch.mLeaves) {
+            int footprint = kFootprintUnknown;
+            if (provenWithoutDiscs(leaf.x0, leaf.y0, leaf.s, footprint)) continue;
             gatherNear(leaf.x0, leaf.y0, leaf.s);
-            uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell);
+            uncoveredCells(leaf.x0, leaf.y0, leaf.s, kScanCell, footprint, true);
         }
         enqueue(0);
         mScanned = true;
@@ -533,13 +557,14 @@ int ContourIntegrator::Lattice::nearestSide(const Leaf& leaf, const Vec3& p, dou
     bool onBorder = false;
     for (uint32_t i = leaf.seg0; i < leaf.seg1; ++i) {
         const Segment& g = scratch.mSegs[i];
-        const double dist = distanceToSegment(p, g);
-        if (dist < best) {
-            best = dist;
+        const double dist2 = distance2ToSegment(p, g);
+        if (dist2 < best) {
+            best = dist2;
             side = glm::dot(glm::cross(g.b - g.a, p - g.a), lightNormal) > 0.0 ? 1 : 0;
             onBorder = g.border;
         }
     }
+    best = std::sqrt(best);
     // Nearest to the (exact) border of what emits: the point's own position decides.
     if (onBorder) side = emits(p) ? 1 : 0;
     return side;

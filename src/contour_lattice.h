@@ -344,13 +344,19 @@ struct ContourIntegrator::Lattice {
     bool cellOutside(double a0, double b0, double size) const;
     void findFootprints();
     bool outsideFootprints(double a0, double b0, double a1, double b1) const;
-    bool footprintProves(double a0, double b0, double size) const;
+    static constexpr int kFootprintUnknown = -2;
+    bool footprintProves(double a0, double b0, double size, int& footprint) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
+    static double distance2ToSegment(const Vec3& p, const Segment& g);
     // How far from a contour segment coverage looks at it: its gaps (a cell within coverageGap x
     // epsilon of a piece's strip is near proven ground) and uncoveredCells' final test (within
     // epsilon of a piece).
     double segmentReach() const { return (1.0 + self.mSettings.coverageGap) * epsWorld; }
-    void uncoveredCells(double a0, double b0, double size, double minSize) const;
+    // `footprint`: the footprints' classification of the cell, when known; `checked`:
+    // provenWithoutDiscs() is known false for the cell itself.
+    void uncoveredCells(double a0, double b0, double size, double minSize,
+                        int footprint = kFootprintUnknown, bool checked = false) const;
+    bool provenWithoutDiscs(double a0, double b0, double size, int& footprint) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
     double coverageKey(const Uncovered& u) const;
     double uncoveredFormFactor() const;

@@ -72,6 +72,8 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             Kernel ker;
             ker.axis = (b.centre - origin) / dist;
             ker.spread = std::asin(b.radius / dist);
+            ker.cosSpread = std::cos(ker.spread);
+            ker.sinSpread = std::sin(ker.spread);
             mKernels.push_back(ker);
         }
         const Box3 kb = occ.kernelBox(i);
@@ -83,6 +85,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
                 Kernel ker;
                 ker.ball = false;
                 ker.n = hull(u, v, ker.u, ker.v);
+                normals(ker.u, ker.v, ker.n, ker.nu, ker.nv);
                 if (ker.n >= 3) mKernels.push_back(ker);
             }
         }
@@ -95,6 +98,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         for (int c = 0; c < 8 && bounded; ++c) bounded = project(box.corner(c), false, u[c], v[c]);
         if (!bounded) continue;
         f.n = hull(u, v, f.u, f.v);
+        normals(f.u, f.v, f.n, f.nu, f.nv);
         f.u0 = f.v0 = std::numeric_limits<double>::infinity();
         f.u1 = f.v1 = -std::numeric_limits<double>::infinity();
         for (int a = 0; a < f.n; ++a) {
@@ -106,6 +110,8 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         const double r = occ.solidRadius(i);
         f.axis = dist > 0.0 ? toCentre / dist : n;
         f.spread = r < dist ? std::asin(r / dist) : kPi;
+        f.cosSpread = std::cos(f.spread);
+        f.sinSpread = std::sin(f.spread);
         mFootprints.push_back(f);
     }
     if (!bounded) mFootprints.clear();
@@ -113,31 +119,64 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
     return bounded;
 }
 
-void LightFootprints::directions(double u0, double v0, double u1, double v1, Vec3& towards,
-                                 double& cosReach) const {
-    towards = glm::normalize(mLight->point(0.5 * (u0 + u1), 0.5 * (v0 + v1)) - mOrigin);
-    cosReach = 1.0;
+void LightFootprints::normals(const double u[8], const double v[8], int n, double nu[8],
+                              double nv[8]) {
+    for (int i = 0; i < n; ++i) {
+        const int j = i + 1 == n ? 0 : i + 1;
+        const double a = v[j] - v[i], b = -(u[j] - u[i]);
+        const double len = std::hypot(a, b);
+        nu[i] = len > 0.0 ? a / len : 0.0;
+        nv[i] = len > 0.0 ? b / len : 0.0;
+    }
+}
+
+void LightFootprints::directions(double u0, double v0, double u1, double v1, Spread& sp) const {
+    if (sp.known) return;
+    sp.known = true;
+    sp.towards = glm::normalize(mLight->point(0.5 * (u0 + u1), 0.5 * (v0 + v1)) - mOrigin);
+    double c = 1.0;
     if (u1 > u0 || v1 > v0) {
         for (const Vec3& q : {mLight->point(u0, v0), mLight->point(u1, v0), mLight->point(u1, v1),
                               mLight->point(u0, v1)})
-            cosReach = std::min(cosReach, glm::dot(towards, glm::normalize(q - mOrigin)));
+            c = std::min(c, glm::dot(sp.towards, glm::normalize(q - mOrigin)));
     }
+    sp.cosReach = std::clamp(c, -1.0, 1.0);
+    sp.sinReach = std::sqrt(std::max(0.0, (1.0 - sp.cosReach) * (1.0 + sp.cosReach)));
 }
 
 // Whether the rectangle's directions from the origin may lie within f's cone: they lie within
 // angle `reach` of the direction to the rectangle's centre, and the cones meet unless the angle
-// between the axes exceeds spread + reach (compared as cosines: cos(apart) < cos(spread + reach)).
-bool LightFootprints::inCone(const Footprint& f, double u0, double v0, double u1, double v1) const {
+// between the axes exceeds spread + reach, compared as cosines (cos(apart) < cos(spread +
+// reach), by the angle-sum formula), with a margin of kMargin on the cosine, which is at least
+// kMargin on the angle.
+bool LightFootprints::inCone(const Footprint& f, double u0, double v0, double u1, double v1,
+                             Spread& sp) const {
     if (!(f.spread < kPi)) return true;
-    Vec3 towards;
-    double cosReach;
-    directions(u0, v0, u1, v1, towards, cosReach);
-    const double reach = std::acos(std::clamp(cosReach, -1.0, 1.0)) + kMargin;
-    if (f.spread + reach >= kPi) return true;
-    return glm::dot(towards, f.axis) >= std::cos(f.spread + reach);
+    directions(u0, v0, u1, v1, sp);
+    // spread + reach at least pi: reach >= pi - spread, cos(reach) <= -cos(spread).
+    if (sp.cosReach <= -f.cosSpread + kMargin) return true;
+    const double cosSum = f.cosSpread * sp.cosReach - f.sinSpread * sp.sinReach;
+    return glm::dot(sp.towards, f.axis) >= cosSum - kMargin;
 }
 
 bool LightFootprints::outside(double u0, double v0, double u1, double v1) const {
+    Spread sp;
+    return outsideAll(u0, v0, u1, v1, sp);
+}
+
+bool LightFootprints::hidden(double u0, double v0, double u1, double v1) const {
+    Spread sp;
+    return hiddenBy(u0, v0, u1, v1, sp);
+}
+
+int LightFootprints::classify(double u0, double v0, double u1, double v1) const {
+    Spread sp;
+    if (outsideAll(u0, v0, u1, v1, sp)) return 1;
+    if (hiddenBy(u0, v0, u1, v1, sp)) return 0;
+    return -1;
+}
+
+bool LightFootprints::outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const {
     if (!mBounded) return false;
     for (const Footprint& f : mFootprints) {
         if (u1 < f.u0 - kMargin || u0 > f.u1 + kMargin || v1 < f.v0 - kMargin || v0 > f.v1 + kMargin)
@@ -145,44 +184,36 @@ bool LightFootprints::outside(double u0, double v0, double u1, double v1) const 
         // Separating axes: each hull edge's outward normal (a box seen edge-on has none).
         bool separated = false;
         for (int i = 0; i < f.n && f.n >= 3 && !separated; ++i) {
-            const int j = i + 1 == f.n ? 0 : i + 1;
-            const double nu = f.v[j] - f.v[i], nv = -(f.u[j] - f.u[i]);
-            const double len = std::hypot(nu, nv);
-            if (!(len > 0.0)) continue;
+            const double nu = f.nu[i], nv = f.nv[i];
+            if (nu == 0.0 && nv == 0.0) continue;
             // The rectangle's corner least far along the normal.
             const double cu = nu > 0.0 ? u0 : u1, cv = nv > 0.0 ? v0 : v1;
-            separated = ((cu - f.u[i]) * nu + (cv - f.v[i]) * nv) / len > kMargin;
+            separated = (cu - f.u[i]) * nu + (cv - f.v[i]) * nv > kMargin;
         }
-        if (separated || !inCone(f, u0, v0, u1, v1)) continue;
+        if (separated || !inCone(f, u0, v0, u1, v1, sp)) continue;
         return false;
     }
     return true;
 }
 
-bool LightFootprints::hidden(double u0, double v0, double u1, double v1) const {
-    bool known = false;  // the rectangle's directions, computed for the first ball
-    Vec3 towards;
-    double reach = 0.0;
+bool LightFootprints::hiddenBy(double u0, double v0, double u1, double v1, Spread& sp) const {
     for (const Kernel& k : mKernels) {
         if (k.ball) {
-            if (!known) {
-                double cosReach;
-                directions(u0, v0, u1, v1, towards, cosReach);
-                reach = std::acos(std::clamp(cosReach, -1.0, 1.0)) + kMargin;
-                known = true;
-            }
-            if (k.spread > reach && glm::dot(towards, k.axis) > std::cos(k.spread - reach)) return true;
+            // Inside the ball's cone: reach < spread (cos(reach) > cos(spread)) and the angle
+            // between the axes below spread - reach, with kMargin on the cosines.
+            directions(u0, v0, u1, v1, sp);
+            if (!(sp.cosReach > k.cosSpread + kMargin)) continue;
+            const double cosDiff = k.cosSpread * sp.cosReach + k.sinSpread * sp.sinReach;
+            if (glm::dot(sp.towards, k.axis) > cosDiff + kMargin) return true;
             continue;
         }
         // Every corner of the rectangle on the inner side of every edge of the box's hull.
         bool in = true;
         for (int i = 0; i < k.n && in; ++i) {
-            const int j = i + 1 == k.n ? 0 : i + 1;
-            const double nu = k.v[j] - k.v[i], nv = -(k.u[j] - k.u[i]);
-            const double len = std::hypot(nu, nv);
+            const double nu = k.nu[i], nv = k.nv[i];
             // The rectangle's corner farthest along the outward normal.
             const double cu = nu > 0.0 ? u1 : u0, cv = nv > 0.0 ? v1 : v0;
-            in = len > 0.0 && ((cu - k.u[i]) * nu + (cv - k.v[i]) * nv) / len < -kMargin;
+            in = (nu != 0.0 || nv != 0.0) && (cu - k.u[i]) * nu + (cv - k.v[i]) * nv < -kMargin;
         }
         if (in) return true;
     }

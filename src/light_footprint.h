@@ -29,27 +29,44 @@ public:
     /// lying wholly between the origin and the light's plane: every point of it is hidden.
     /// Kernels are kept whatever build() returned.
     bool hidden(double u0, double v0, double u1, double v1) const;
+    /// outside() and hidden() in one: 1 when the rectangle lies outside every footprint, 0 when
+    /// a kernel hides it, -1 when neither is proven (the rectangle's directions found once).
+    int classify(double u0, double v0, double u1, double v1) const;
 private:
+    // The rectangle's directions from the origin (directions()), found when first asked for.
+    struct Spread {
+        bool known = false;
+        Vec3 towards{0.0};
+        double cosReach = 1.0, sinReach = 0.0;
+    };
     struct Footprint {
-        double u[8], v[8];  // the box's projected hull, counter-clockwise
+        double u[8], v[8];    // the box's projected hull, counter-clockwise
+        double nu[8], nv[8];  // its edges' unit outward normals (zero for an edge of no length)
         int n = 0;
         double u0, v0, u1, v1;  // the hull's bounding box
         Vec3 axis;              // unit direction from the origin to the sphere's centre
         double spread;          // the sphere's angular radius from the origin (pi: all)
+        double cosSpread, sinSpread;
     };
     struct Kernel {
         bool ball = true;
         Vec3 axis{0.0};  // a ball: unit direction from the origin to its centre
         double spread = 0.0;  // its angular radius
-        double u[8], v[8];  // a box: its projected hull, counter-clockwise
+        double cosSpread = 1.0, sinSpread = 0.0;
+        double u[8], v[8];    // a box: its projected hull, counter-clockwise
+        double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
-    bool inCone(const Footprint& f, double u0, double v0, double u1, double v1) const;
-    // The rectangle's directions from the origin: the one to its centre, and the cosine of the
-    // largest angle from it to a corner's.
-    void directions(double u0, double v0, double u1, double v1, Vec3& towards, double& cosReach) const;
+    bool outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const;
+    bool hiddenBy(double u0, double v0, double u1, double v1, Spread& sp) const;
+    bool inCone(const Footprint& f, double u0, double v0, double u1, double v1, Spread& sp) const;
+    // The rectangle's directions from the origin: the one to its centre, and the cosine and
+    // sine of the largest angle from it to a corner's (once per rectangle: sp.known).
+    void directions(double u0, double v0, double u1, double v1, Spread& sp) const;
     // The hull of points (u[i], v[i]), i < 8, counter-clockwise into (hu, hv); its size.
     static int hull(const double u[8], const double v[8], double hu[8], double hv[8]);
+    // The unit outward normals of the hull's n edges.
+    static void normals(const double u[8], const double v[8], int n, double nu[8], double nv[8]);
 
     std::vector<Footprint> mFootprints;
     std::vector<Kernel> mKernels;
