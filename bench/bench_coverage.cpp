@@ -8,7 +8,9 @@
 // one thread, maximum and mean error relative to the unoccluded form factor, and, for the
 // default mode, the median error bound against the median error; under each ACI mode, its rays
 // per point in penumbra, fully lit and in umbra (by the exact answer), and how many of them
-// certified coverage cast.
+// certified coverage cast, and how many lattice samples the footprints answered without a ray
+// ("untraced"; of them, "clearances": those whose clearance the tangent construction then
+// measured, a distance march along the segment that is not counted as a shadow ray).
 // Not a test: it only prints figures. Usage: bench_coverage [scenes [points-per-scene [analytic|levelset]]]
 // (`analytic`: the exact spheres only, without building level sets; `levelset`: the level sets only).
 #include <algorithm>
@@ -43,6 +45,9 @@ struct Totals {
     // Per point: its rays, of them coverage's, and what it sees (0 umbra, 1 penumbra, 2 fully
     // lit, by the exact answer).
     std::vector<double> pointRays, pointCoverage;
+    // Per point: lattice samples the footprints answered without a ray, and of them those
+    // whose clearance the tangent construction measured (a distance march, not a shadow ray).
+    std::vector<double> pointFootprint, pointFootprintClear;
     std::vector<int> kind;
 };
 
@@ -92,6 +97,8 @@ Totals run(const std::vector<Case>& cases, const std::vector<Occluder>& occluder
             t.rays += double(out[k].counts.shadowRays());
             t.pointRays.push_back(double(out[k].counts.shadowRays()));
             t.pointCoverage.push_back(double(out[k].counts.coverageRays));
+            t.pointFootprint.push_back(double(out[k].counts.footprintSamples));
+            t.pointFootprintClear.push_back(double(out[k].counts.footprintClearances));
             const double seen = cases[s].exact[k] / cases[s].full[k];
             t.kind.push_back(seen < 1e-9 ? 0 : seen > 1.0 - 1e-9 ? 2 : 1);
         }
@@ -127,17 +134,21 @@ void printByKind(const Totals& t) {
     const char* names[3] = {"in umbra", "in penumbra", "fully lit"};
     std::printf("%-10s   ", "");
     for (int kd : {1, 2, 0}) {
-        double rays = 0, coverage = 0;
+        double rays = 0, coverage = 0, footprint = 0, clear = 0;
         int n = 0;
         for (size_t i = 0; i < t.kind.size(); ++i) {
             if (t.kind[i] != kd) continue;
             rays += t.pointRays[i];
             coverage += t.pointCoverage[i];
+            footprint += t.pointFootprint[i];
+            clear += t.pointFootprintClear[i];
             ++n;
         }
         if (n == 0) continue;
         std::printf("%s%d %s: %.1f rays/pt", kd == 1 ? "" : "; ", n, names[kd], rays / n);
         if (coverage > 0) std::printf(" (%.1f coverage)", coverage / n);
+        if (footprint > 0)
+            std::printf(" + %.1f untraced (%.1f clearances)", footprint / n, clear / n);
     }
     std::printf("\n");
 }

@@ -205,9 +205,25 @@ double ContourIntegrator::Lattice::distance2ToSegment(const Vec3& p, const Segme
 // factor off at 1.3 times the bound; regression test in test_coverage.cpp).
 void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double size,
                                                 double minSize, int footprint, bool checked) const {
+    const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
+    // The distance to the nearest located contour piece (its strip, within epsilon of it, its
+    // own term of the bound, is proven ground too).
+    double near = -1.0;
+    auto nearest = [&] {
+        if (near < 0.0) {
+            double near2 = std::numeric_limits<double>::infinity();
+            for (const Segment& g : scratch.mNearSegs)
+                if (!g.border) near2 = std::min(near2, distance2ToSegment(c, g));
+            near = std::sqrt(near2);
+        }
+        return near;
+    };
+    // The final count: a cell within epsilon of a located contour piece belongs to the piece's
+    // strip, not to what coverage left open (first, as the cheapest test: the strips along
+    // the contour are where the final count cuts most cells).
+    if (minSize <= 1.0 && nearest() + size * cellReach <= epsWorld) return;
     if (!checked && provenWithoutDiscs(a0, b0, size, footprint)) return;
     const int inherited = footprint >= 0 ? footprint : kFootprintUnknown;
-    const Vec3 c = at(a0 + 0.5 * size, b0 + 0.5 * size);
     if (cellInDisc(a0, b0, size, c)) return;
     if (size > minSize) {
         const double h = 0.5 * size;
@@ -216,18 +232,9 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
         return;
     }
     if (!emits(c)) return;
-    // The nearest located contour piece (its strip, within epsilon of it, its own term of the
-    // bound, is proven ground too).
-    double near2 = std::numeric_limits<double>::infinity();
-    for (const Segment& g : scratch.mNearSegs)
-        if (!g.border) near2 = std::min(near2, distance2ToSegment(c, g));
-    const double near = std::sqrt(near2);
-    // The final count: a cell within epsilon of a located contour piece belongs to the piece's
-    // strip, not to what coverage left open.
-    if (minSize <= 1.0 && near + size * cellReach <= epsWorld) return;
     Uncovered u{a0, b0, size, std::numeric_limits<double>::infinity(), c};
     for (const Disc& d : scratch.mDiscs) gapTo(u, d, glm::length(u.centre - d.c));
-    u.gap = std::min(u.gap, near - epsWorld);
+    u.gap = std::min(u.gap, nearest() - epsWorld);
     u.key = coverageKey(u);
     scratch.mUncovered.push_back(u);
 }

@@ -158,6 +158,27 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     if (self.mSettings.reuseCorners && firstLevel && q.a % s0 == 0 && q.b % s0 == 0) {
         kept = scratch.reusableCorner(light, {pa, pb}, q.a / s0, q.b / s0);
     }
+    if (self.mSettings.coverage && !kept) {
+        // A sample outside every obstacle's footprint is visible, and so is every light point
+        // nearer than the footprints: a disc of that radius, without a ray. Its clearance is
+        // measured only if the tangent construction asks (settle(), like a traced ray's).
+        const double r = std::min(want, scratch.mFootprints.distance(double(q.a) / Na, double(q.b) / Nb));
+        if (r > 0.0) {
+            ++counts.footprintSamples;
+            clear = std::numeric_limits<float>::quiet_NaN();
+            if (self.mSettings.tangentContour) scratch.mGeometry[idx] = RayGeometry{};
+            scratch.mPending[idx] = self.mSettings.distanceGuided ? kPendingUntraced : 0;
+            s = kVisible;
+            Certificate c;
+            c.radius = r;
+            c.radiusOthers = r;
+            scratch.mCert[idx] = c;
+            scratch.mTraced.push_back(static_cast<uint32_t>(idx));
+            scratch.mTracedDiscs.push_back({target, r});
+            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
+            return s;
+        }
+    }
     Corner ray;
     if (kept && kept->answers(origin)) {
         ray = *kept;
@@ -203,6 +224,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
 size_t ContourIntegrator::Lattice::settle(LatticePoint q) const {
     const size_t idx = index(q);
     if (scratch.mPending[idx] && scratch.mStamp[idx] == scratch.mGeneration) {
+        if (scratch.mPending[idx] == kPendingUntraced) ++counts.footprintClearances;
         scratch.mPending[idx] = 0;
         const Vec3 target = pointOf(q);
         const Clearance c = query.clearance(origin, target, scratch.mSample[idx] != kVisible);

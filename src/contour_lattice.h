@@ -79,6 +79,7 @@ struct Uncovered {  // a cell of the light no disc proves yet
 
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
+constexpr uint8_t kPendingUntraced = 2;  // Scratch::mPending: answered by footprints, no ray yet
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
 // With coverage: an evaluation whose coverage rays ran out with more than this share of the
 // light's area unproven restarts once one level deeper (contour_integrator.cpp).
@@ -158,7 +159,8 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
-    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet
+    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet;
+                                    // kPendingUntraced: nor was a ray traced (footprints)
     std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
     std::vector<Certificate> mCert;  // coverage: each sample's certificate
     std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
@@ -221,7 +223,7 @@ struct ContourIntegrator::Lattice {
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
     bool remark = false;       // coverage: the pass marked new samples and must run again
-    AciCounts counts;
+    mutable AciCounts counts;  // settle() counts the clearances of untraced samples
     Vec3 g{0.0};
     Mat3 dg{0.0};
 

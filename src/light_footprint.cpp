@@ -46,6 +46,8 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
     mOrigin = origin;
     const Vec3 n = light.normal();
     mToLight = glm::dot(light.corner - origin, n);
+    mPlaneX = glm::normalize(light.edgeU);
+    mPlaneY = glm::cross(n, mPlaneX);
     if (!(std::abs(mToLight) > 0.0)) return false;
     // Where a point projects from the origin onto the light's plane, in (u, v); false when it
     // lies level with or behind the origin (seen from the light), or `before` and it does not
@@ -99,6 +101,12 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         if (!bounded) continue;
         f.n = hull(u, v, f.u, f.v);
         normals(f.u, f.v, f.n, f.nu, f.nv);
+        for (int a = 0; a < f.n; ++a) {
+            const Vec3 p = light.point(f.u[a], f.v[a]) - light.corner;
+            f.x[a] = glm::dot(p, mPlaneX);
+            f.y[a] = glm::dot(p, mPlaneY);
+        }
+        normals(f.x, f.y, f.n, f.nx, f.ny);
         f.u0 = f.v0 = std::numeric_limits<double>::infinity();
         f.u1 = f.v1 = -std::numeric_limits<double>::infinity();
         for (int a = 0; a < f.n; ++a) {
@@ -174,6 +182,37 @@ int LightFootprints::classify(double u0, double v0, double u1, double v1) const 
     if (outsideAll(u0, v0, u1, v1, sp)) return 1;
     if (hiddenBy(u0, v0, u1, v1, sp)) return 0;
     return -1;
+}
+
+// Each footprint is the hull and the cone's intersection, so its distance is at least the
+// larger of theirs: the hull's at least the largest signed distance past one of its edges' lines
+// (the hull being convex), the cone's at least |Q - M| sin(angle past the cone) (the nearest a
+// ray from M at that angle from MQ comes to Q).
+double LightFootprints::distance(double u, double v) const {
+    if (!mBounded) return 0.0;
+    const Vec3 q = mLight->point(u, v);
+    const Vec3 p = q - mLight->corner;
+    const double px = glm::dot(p, mPlaneX), py = glm::dot(p, mPlaneY);
+    const Vec3 d = q - mOrigin;
+    const double dist = glm::length(d);
+    const Vec3 towards = d / dist;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const Footprint& f : mFootprints) {
+        double hull = f.n >= 3 ? -std::numeric_limits<double>::infinity() : 0.0;
+        for (int i = 0; i < f.n && f.n >= 3; ++i)
+            if (f.nx[i] != 0.0 || f.ny[i] != 0.0)
+                hull = std::max(hull, (px - f.x[i]) * f.nx[i] + (py - f.y[i]) * f.ny[i]);
+        double cone = 0.0;
+        if (f.spread < kPi) {
+            const double apart = std::acos(std::clamp(glm::dot(towards, f.axis), -1.0, 1.0));
+            const double past = apart - f.spread;
+            if (past > 0.0) cone = dist * std::sin(std::min(past, 0.5 * kPi));
+        }
+        nearest = std::min(nearest, std::max({hull, cone, 0.0}));
+        if (!(nearest > 0.0)) return 0.0;
+    }
+    // A margin far above rounding.
+    return std::max(0.0, nearest * (1.0 - 1e-9) - 1e-9 * dist);
 }
 
 bool LightFootprints::outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const {

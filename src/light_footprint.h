@@ -32,6 +32,10 @@ public:
     /// outside() and hidden() in one: 1 when the rectangle lies outside every footprint, 0 when
     /// a kernel hides it, -1 when neither is proven (the rectangle's directions found once).
     int classify(double u0, double v0, double u1, double v1) const;
+    /// A lower bound on the distance, in the light's plane (world units), from light point
+    /// (u, v) to every footprint: every light point nearer than that is visible too. 0 when the
+    /// point lies in some footprint, or none is bounded.
+    double distance(double u, double v) const;
 private:
     // The rectangle's directions from the origin (directions()), found when first asked for.
     struct Spread {
@@ -47,6 +51,9 @@ private:
         Vec3 axis;              // unit direction from the origin to the sphere's centre
         double spread;          // the sphere's angular radius from the origin (pi: all)
         double cosSpread, sinSpread;
+        // The hull in an orthonormal frame of the light's plane (mPlaneX, mPlaneY from
+        // mLight->corner), with its edges' unit outward normals there.
+        double x[8], y[8], nx[8], ny[8];
     };
     struct Kernel {
         bool ball = true;
@@ -74,6 +81,7 @@ private:
     const RectLight* mLight = nullptr;
     Vec3 mOrigin{0.0};
     double mToLight = 0.0;  // the origin's signed distance to the light's plane
+    Vec3 mPlaneX{0.0}, mPlaneY{0.0};  // an orthonormal frame of the light's plane
 };
 
 }  // namespace penumbra

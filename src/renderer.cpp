@@ -789,6 +789,8 @@ private:
         mTs.stats.firstLevelRays += e.counts.firstLevelRays;
         mTs.stats.secondLevelRays += e.counts.secondLevelRays;
         mTs.stats.coverageRays += e.counts.coverageRays;
+        mTs.stats.footprintSamples += e.counts.footprintSamples;
+        mTs.stats.footprintClearances += e.counts.footprintClearances;
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
@@ -810,6 +812,8 @@ private:
         st.firstLevelRays += e.counts.firstLevelRays;
         st.secondLevelRays += e.counts.secondLevelRays;
         st.coverageRays += e.counts.coverageRays;
+        st.footprintSamples += e.counts.footprintSamples;
+        st.footprintClearances += e.counts.footprintClearances;
         st.cacheHits += e.counts.cacheHits;
         st.reusedRays += e.counts.reusedRays;
         st.restarts += e.counts.restarts;

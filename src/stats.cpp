@@ -23,6 +23,8 @@ void RenderStats::merge(const RenderStats& o) {
     firstLevelRays += o.firstLevelRays;
     secondLevelRays += o.secondLevelRays;
     coverageRays += o.coverageRays;
+    footprintSamples += o.footprintSamples;
+    footprintClearances += o.footprintClearances;
     cacheHits += o.cacheHits;
     reusedRays += o.reusedRays;
     spans += o.spans;
@@ -60,6 +62,8 @@ std::string RenderStats::toJson() const {
     j["first_level_rays"] = firstLevelRays;
     j["second_level_rays"] = secondLevelRays;
     j["coverage_rays"] = coverageRays;
+    j["footprint_samples"] = footprintSamples;
+    j["footprint_clearances"] = footprintClearances;
     j["cache_hits"] = cacheHits;
     j["reused_first_level_rays"] = reusedRays;
     j["spans"] = spans;

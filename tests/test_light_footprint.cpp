@@ -2,8 +2,10 @@
 // must be visible from the ray origin, and one inside the projection of an obstacle's kernel
 // hidden, checked by brute force with real shadow rays from ground points on scenes of every
 // obstacle kind (analytic spheres and boxes; level-set spheres, boxes, cylinders, capsules,
-// tori), half the light samples aimed around the obstacles' shadows. Neither may be trivial:
-// most of the light lies outside the footprints, and the kernels prove some of the shadow.
+// tori), half the light samples aimed around the obstacles' shadows; and every light point within
+// the footprints' distance of a sample (LightFootprints::distance, the disc a sample answered
+// without a ray proves) visible. None may be trivial: most of the light lies outside the
+// footprints, the kernels prove some of the shadow, nearly every point outside has a disc.
 #include <catch2/catch.hpp>
 
 #include <algorithm>
@@ -23,7 +25,7 @@ using namespace penumbra;
 namespace {
 
 struct Counts {
-    long outside = 0, hidden = 0, samples = 0, violations = 0;
+    long outside = 0, hidden = 0, samples = 0, violations = 0, discs = 0;
 };
 
 // Receiver points: on the ground plane z = 0 in [-r, r]^2, facing up.
@@ -59,6 +61,20 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
                 v = std::clamp(around[i].y + spread * gauss(rng), 0.0, 1.0);
             }
             ++counts.samples;
+            // The footprints' distance: every light point that near is visible too, checked at
+            // a point just inside the disc's rim, in a random direction in the light's plane.
+            const double d = fp.distance(u, v);
+            if (d > 0.0) {
+                ++counts.discs;
+                const Vec3 ex = glm::normalize(light.edgeU), ey = glm::cross(n, ex);
+                const double a = 2.0 * kPi * unit(rng);
+                const Vec3 rim = light.point(u, v) + 0.999 * d * (std::cos(a) * ex + std::sin(a) * ey);
+                if (q.occluded(origin, rim)) {
+                    ++counts.violations;
+                    CAPTURE(origin, u, v, d);
+                    CHECK(false);
+                }
+            }
             const bool outside = fp.outside(u, v, u, v), hidden = fp.hidden(u, v, u, v);
             CHECK_FALSE((outside && hidden));
             if (!outside && !hidden) continue;
@@ -98,12 +114,14 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
     }
     WARN("footprints: " << counts.samples << " light samples, " << counts.outside
                         << " outside every footprint, " << counts.hidden << " in a kernel's shadow, "
-                        << counts.violations << " answered otherwise by a ray");
+                        << counts.discs << " with a disc, " << counts.violations
+                        << " answered otherwise by a ray");
     CHECK(counts.violations == 0);
     // Not trivial: most of these lights lies outside the footprints of obstacles this small.
     CHECK(counts.outside > counts.samples / 2);
     CHECK(counts.outside < counts.samples * 0.95);  // and many samples near the borders
     CHECK(counts.hidden > counts.samples / 50);      // kernels prove some shadow too
+    CHECK(counts.discs > counts.outside * 9 / 10);   // and nearly every point outside a disc
 }
 
 TEST_CASE("light footprints: none from a point an obstacle's solid box reaches behind",

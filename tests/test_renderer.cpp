@@ -653,12 +653,15 @@ TEST_CASE("penumbra render writes the image and statistics, and refuses bad flag
     for (const char* key :
          {"method", "width", "height", "threads", "seconds", "viewing_rays",
           "viewing_rays_with_shadow_rays", "shadow_rays", "shadow_rays_per_viewing_ray", "spans",
-          "interpolated_pixels", "aci_evaluations", "restarts", "coverage_rays"}) {
+          "interpolated_pixels", "aci_evaluations", "restarts", "coverage_rays",
+          "footprint_samples", "footprint_clearances"}) {
         CHECK(j.contains(key));
     }
     CHECK(j["viewing_rays"] == 320);
     // Coverage's rays are a part of the second-level ones.
     CHECK(j["coverage_rays"].get<uint64_t>() <= j["second_level_rays"].get<uint64_t>());
+    // The footprints' clearances are measured for samples they answered.
+    CHECK(j["footprint_clearances"].get<uint64_t>() <= j["footprint_samples"].get<uint64_t>());
     double raySum = 0.0;
     for (float v : rays.data) raySum += v;
     CHECK(raySum == double(j["shadow_rays"].get<uint64_t>()));

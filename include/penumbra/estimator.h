@@ -49,6 +49,10 @@ struct AciCounts {
     uint64_t firstLevelRays = 0;   ///< rays to grid corners (also after a restart)
     uint64_t secondLevelRays = 0;  ///< saddle centres, dichotomies, checks, refinements
     uint64_t coverageRays = 0;     ///< of the second-level rays, those certified coverage cast
+    uint64_t footprintSamples = 0; ///< lattice samples the footprints answered, without a ray
+    /// Of those, the ones whose clearance the tangent construction then measured (a distance
+    /// march of the segment; like a traced ray's own clearance, not a shadow ray).
+    uint64_t footprintClearances = 0;
     uint64_t cacheHits = 0;        ///< lattice samples asked for again and found in the cache
     uint64_t reusedRays = 0;       ///< first-level samples answered by an earlier ray (reuseCorners)
     uint64_t squaresRefined = 0;
@@ -61,6 +65,8 @@ struct AciCounts {
         firstLevelRays += o.firstLevelRays;
         secondLevelRays += o.secondLevelRays;
         coverageRays += o.coverageRays;
+        footprintSamples += o.footprintSamples;
+        footprintClearances += o.footprintClearances;
         cacheHits += o.cacheHits;
         reusedRays += o.reusedRays;
         squaresRefined += o.squaresRefined;

@@ -46,6 +46,8 @@ struct RenderStats {
     uint64_t firstLevelRays = 0;             ///< of which first-level rays (ACI and patterns)
     uint64_t secondLevelRays = 0;            ///< of which second-level rays (dichotomies, checks)
     uint64_t coverageRays = 0;               ///< of the second-level rays, certified coverage's
+    uint64_t footprintSamples = 0;           ///< lattice samples answered by footprints, no ray
+    uint64_t footprintClearances = 0;        ///< of those, the ones whose clearance was measured
     uint64_t cacheHits = 0;                  ///< lattice samples reused inside ACI evaluations
     uint64_t reusedRays = 0;                 ///< first-level rays answered by an earlier pixel's ray
     uint64_t spans = 0;                      ///< span-light pairs
