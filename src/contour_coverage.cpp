@@ -221,7 +221,8 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     // The final count: a cell within epsilon of a located contour piece belongs to the piece's
     // strip, not to what coverage left open (first, as the cheapest test: the strips along
     // the contour are where the final count cuts most cells).
-    if (minSize <= 1.0 && nearest() + size * cellReach <= epsWorld) return;
+    if (minSize <= 1.0 && size * cellReach <= epsWorld && nearest() + size * cellReach <= epsWorld)
+        return;
     if (!checked && provenWithoutDiscs(a0, b0, size, footprint)) return;
     const int inherited = footprint >= 0 ? footprint : kFootprintUnknown;
     if (cellInDisc(a0, b0, size, c)) return;
