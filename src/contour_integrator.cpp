@@ -172,10 +172,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
             Certificate c;
             c.radius = r;
             c.radiusOthers = r;
-            scratch.mCert[idx] = c;
-            scratch.mTraced.push_back(static_cast<uint32_t>(idx));
-            scratch.mTracedDiscs.push_back({target, r});
-            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
+            recordCertificate(idx, q, c);
             return s;
         }
     }
@@ -207,16 +204,17 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         const auto b = static_cast<uint32_t>(ray.blocker);
         if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
     }
-    if (self.mSettings.coverage) {
-        scratch.mCert[idx] = ray.cert;
-        const Certificate& c = ray.cert;
-        if (c.radius > 0.0) {
-            scratch.mTraced.push_back(static_cast<uint32_t>(idx));
-            scratch.mTracedDiscs.push_back({target, c.radius});
-            addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
-        }
-    }
+    if (self.mSettings.coverage) recordCertificate(idx, q, ray.cert);
     return s;
+}
+
+// Keeps sample q's certificate, and its disc for coverage when it proves one.
+void ContourIntegrator::Lattice::recordCertificate(size_t idx, LatticePoint q, const Certificate& c) {
+    scratch.mCert[idx] = c;
+    if (!(c.radius > 0.0)) return;
+    scratch.mTraced.push_back(static_cast<uint32_t>(idx));
+    scratch.mTracedDiscs.push_back({pointOf(q), c.radius});
+    addDisc(static_cast<uint32_t>(scratch.mTracedDiscs.size() - 1), q);
 }
 
 // The index of traced sample q, its clearance measured now if it was left for later
