@@ -162,7 +162,8 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         // A sample outside every obstacle's footprint is visible, and so is every light point
         // nearer than the footprints: a disc of that radius, without a ray. Its clearance is
         // measured only if the tangent construction asks (settle(), like a traced ray's).
-        const double r = std::min(want, scratch.mFootprints.distance(double(q.a) / Na, double(q.b) / Nb));
+        const double u = double(q.a) / Na, v = double(q.b) / Nb;
+        const double r = std::min(want, scratch.mFootprints.distance(u, v));
         if (r > 0.0) {
             ++counts.footprintSamples;
             clear = std::numeric_limits<float>::quiet_NaN();
@@ -172,6 +173,29 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
             Certificate c;
             c.radius = r;
             c.radiusOthers = r;
+            recordCertificate(idx, q, c);
+            return s;
+        }
+        // Likewise a sample inside one obstacle's kernel and outside every other footprint is
+        // hidden by that obstacle, first along its segment where it enters the kernel: what a
+        // ray would have found (its hit fraction, its blocker), and a disc of the kernel's
+        // distance, without a ray.
+        const LightFootprints::Hidden h = scratch.mFootprints.hiddenAt(u, v);
+        if (h.radius > 0.0) {
+            ++counts.footprintSamples;
+            clear = std::numeric_limits<float>::quiet_NaN();
+            if (self.mSettings.tangentContour) {
+                scratch.mGeometry[idx] = RayGeometry{};
+                scratch.mGeometry[idx].hider = static_cast<float>(h.obstacle);
+            }
+            scratch.mPending[idx] = self.mSettings.distanceGuided ? kPendingUntraced : 0;
+            s = static_cast<float>(std::clamp(h.fraction, 0.01, 1.0));
+            const auto b = static_cast<uint32_t>(h.obstacle);
+            if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
+            Certificate c;
+            c.radius = std::min(want, h.radius);
+            c.obstacle = h.obstacle;
+            c.radiusOthers = std::min(c.radius, h.others);
             recordCertificate(idx, q, c);
             return s;
         }

@@ -72,6 +72,9 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             const double reach = b.radius / std::abs(mToLight);
             if (!(along - reach > 1e-9 && along + reach < 1.0 - 1e-9 && b.radius < dist)) continue;
             Kernel ker;
+            ker.obstacle = int(i);
+            ker.centre = b.centre;
+            ker.radius = b.radius;
             ker.axis = (b.centre - origin) / dist;
             ker.spread = std::asin(b.radius / dist);
             ker.cosSpread = std::cos(ker.spread);
@@ -86,8 +89,12 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             if (all) {
                 Kernel ker;
                 ker.ball = false;
+                ker.obstacle = int(i);
+                ker.box = kb;
                 ker.n = hull(u, v, ker.u, ker.v);
                 normals(ker.u, ker.v, ker.n, ker.nu, ker.nv);
+                toPlane(ker.u, ker.v, ker.n, ker.x, ker.y);
+                normals(ker.x, ker.y, ker.n, ker.nx, ker.ny);
                 if (ker.n >= 3) mKernels.push_back(ker);
             }
         }
@@ -96,16 +103,13 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         const Box3& box = occ.solidBounds(i);
         if (box.empty()) continue;  // nothing of it can block
         Footprint f;
+        f.obstacle = int(i);
         double u[8], v[8];
         for (int c = 0; c < 8 && bounded; ++c) bounded = project(box.corner(c), false, u[c], v[c]);
         if (!bounded) continue;
         f.n = hull(u, v, f.u, f.v);
         normals(f.u, f.v, f.n, f.nu, f.nv);
-        for (int a = 0; a < f.n; ++a) {
-            const Vec3 p = light.point(f.u[a], f.v[a]) - light.corner;
-            f.x[a] = glm::dot(p, mPlaneX);
-            f.y[a] = glm::dot(p, mPlaneY);
-        }
+        toPlane(f.u, f.v, f.n, f.x, f.y);
         normals(f.x, f.y, f.n, f.nx, f.ny);
         f.u0 = f.v0 = std::numeric_limits<double>::infinity();
         f.u1 = f.v1 = -std::numeric_limits<double>::infinity();
@@ -184,10 +188,34 @@ int LightFootprints::classify(double u0, double v0, double u1, double v1) const 
     return -1;
 }
 
+void LightFootprints::toPlane(const double u[8], const double v[8], int n, double x[8],
+                              double y[8]) const {
+    for (int a = 0; a < n; ++a) {
+        const Vec3 p = mLight->point(u[a], v[a]) - mLight->corner;
+        x[a] = glm::dot(p, mPlaneX);
+        y[a] = glm::dot(p, mPlaneY);
+    }
+}
+
 // Each footprint is the hull and the cone's intersection, so its distance is at least the
 // larger of theirs: the hull's at least the largest signed distance past one of its edges' lines
 // (the hull being convex), the cone's at least |Q - M| sin(angle past the cone) (the nearest a
 // ray from M at that angle from MQ comes to Q).
+double LightFootprints::distanceTo(const Footprint& f, double px, double py, double dist,
+                                   const Vec3& towards) {
+    double hull = f.n >= 3 ? -std::numeric_limits<double>::infinity() : 0.0;
+    for (int i = 0; i < f.n && f.n >= 3; ++i)
+        if (f.nx[i] != 0.0 || f.ny[i] != 0.0)
+            hull = std::max(hull, (px - f.x[i]) * f.nx[i] + (py - f.y[i]) * f.ny[i]);
+    double cone = 0.0;
+    if (f.spread < kPi) {
+        const double apart = std::acos(std::clamp(glm::dot(towards, f.axis), -1.0, 1.0));
+        const double past = apart - f.spread;
+        if (past > 0.0) cone = dist * std::sin(std::min(past, 0.5 * kPi));
+    }
+    return std::max({hull, cone, 0.0});
+}
+
 double LightFootprints::distance(double u, double v) const {
     if (!mBounded) return 0.0;
     const Vec3 q = mLight->point(u, v);
@@ -198,21 +226,74 @@ double LightFootprints::distance(double u, double v) const {
     const Vec3 towards = d / dist;
     double nearest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
-        double hull = f.n >= 3 ? -std::numeric_limits<double>::infinity() : 0.0;
-        for (int i = 0; i < f.n && f.n >= 3; ++i)
-            if (f.nx[i] != 0.0 || f.ny[i] != 0.0)
-                hull = std::max(hull, (px - f.x[i]) * f.nx[i] + (py - f.y[i]) * f.ny[i]);
-        double cone = 0.0;
-        if (f.spread < kPi) {
-            const double apart = std::acos(std::clamp(glm::dot(towards, f.axis), -1.0, 1.0));
-            const double past = apart - f.spread;
-            if (past > 0.0) cone = dist * std::sin(std::min(past, 0.5 * kPi));
-        }
-        nearest = std::min(nearest, std::max({hull, cone, 0.0}));
+        nearest = std::min(nearest, distanceTo(f, px, py, dist, towards));
         if (!(nearest > 0.0)) return 0.0;
     }
     // A margin far above rounding.
     return std::max(0.0, nearest * (1.0 - 1e-9) - 1e-9 * dist);
+}
+
+// Inside a kernel's projection the distance to its outside is at least, for a ball, |Q - M|
+// sin(angle left inside its cone) (the farthest a light point can be from Q with its
+// direction still inside), and for a box the smallest distance inside its hull's edge lines.
+// The segment enters the kernel where a ray meets a ball or a box: the nearer root of the
+// quadratic, the largest of the slabs' entries.
+LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
+    Hidden out;
+    if (!mBounded || mKernels.empty()) return out;
+    const Vec3 q = mLight->point(u, v);
+    const Vec3 p = q - mLight->corner;
+    const double px = glm::dot(p, mPlaneX), py = glm::dot(p, mPlaneY);
+    const Vec3 d = q - mOrigin;
+    const double dist = glm::length(d);
+    const Vec3 towards = d / dist;
+    const Kernel* best = nullptr;
+    for (const Kernel& k : mKernels) {
+        double inside = 0.0;
+        if (k.ball) {
+            const double apart = std::acos(std::clamp(glm::dot(towards, k.axis), -1.0, 1.0));
+            if (apart < k.spread) inside = dist * std::sin(k.spread - apart);
+        } else {
+            inside = std::numeric_limits<double>::infinity();
+            for (int i = 0; i < k.n && inside > 0.0; ++i)
+                inside = k.nx[i] != 0.0 || k.ny[i] != 0.0
+                             ? std::min(inside, -((px - k.x[i]) * k.nx[i] + (py - k.y[i]) * k.ny[i]))
+                             : 0.0;
+        }
+        if (inside > out.radius) {
+            out.radius = inside;
+            best = &k;
+        }
+    }
+    if (!best) return out;
+    // The nearest other footprint: none may hold the point.
+    double others = std::numeric_limits<double>::infinity();
+    for (const Footprint& f : mFootprints) {
+        if (f.obstacle == best->obstacle) continue;
+        others = std::min(others, distanceTo(f, px, py, dist, towards));
+        if (!(others > 0.0)) return Hidden{};
+    }
+    double t = 0.0;
+    if (best->ball) {
+        const Vec3 oc = mOrigin - best->centre;
+        const double a = glm::dot(d, d), b = glm::dot(d, oc);
+        const double c = glm::dot(oc, oc) - best->radius * best->radius;
+        t = (-b - std::sqrt(std::max(0.0, b * b - a * c))) / a;
+    } else {
+        for (int axis = 0; axis < 3; ++axis) {
+            if (d[axis] == 0.0) continue;
+            const double t0 = (best->box.lo[axis] - mOrigin[axis]) / d[axis];
+            const double t1 = (best->box.hi[axis] - mOrigin[axis]) / d[axis];
+            t = std::max(t, std::min(t0, t1));
+        }
+    }
+    // Margins far above rounding.
+    out.radius = std::max(0.0, out.radius * (1.0 - 1e-9) - 1e-9 * dist);
+    out.others = std::isfinite(others) ? std::max(0.0, others * (1.0 - 1e-9) - 1e-9 * dist) : 1e300;
+    out.obstacle = best->obstacle;
+    out.fraction = std::clamp(t, 0.0, 1.0);
+    if (!(out.radius > 0.0)) return Hidden{};
+    return out;
 }
 
 bool LightFootprints::outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const {

@@ -36,6 +36,18 @@ public:
     /// (u, v) to every footprint: every light point nearer than that is visible too. 0 when the
     /// point lies in some footprint, or none is bounded.
     double distance(double u, double v) const;
+    /// A light point hidden by one obstacle alone, as a traced ray would find it.
+    struct Hidden {
+        double radius = 0.0;    ///< every light point nearer is hidden too (world units); 0: none
+        int obstacle = -1;      ///< the obstacle whose kernel hides it, the segment's first
+        double fraction = 0.0;  ///< where the segment enters that kernel, origin 0, light 1
+        double others = 0.0;    ///< every light point nearer lies outside the other footprints
+    };
+    /// Light point (u, v) inside the projection of an obstacle's kernel and outside every other
+    /// obstacle's footprint: that obstacle blocks the segment to it, and nothing meets the
+    /// segment before its kernel. Radius 0 when no kernel proves it, or the footprints are not
+    /// bounded (another obstacle could meet the segment anywhere).
+    Hidden hiddenAt(double u, double v) const;
 private:
     // The rectangle's directions from the origin (directions()), found when first asked for.
     struct Spread {
@@ -54,9 +66,15 @@ private:
         // The hull in an orthonormal frame of the light's plane (mPlaneX, mPlaneY from
         // mLight->corner), with its edges' unit outward normals there.
         double x[8], y[8], nx[8], ny[8];
+        int obstacle = -1;
     };
     struct Kernel {
         bool ball = true;
+        int obstacle = -1;
+        Vec3 centre{0.0};     // a ball: its centre and radius
+        double radius = 0.0;
+        Box3 box;             // a box: itself
+        double x[8], y[8], nx[8], ny[8];  // a box: its hull in the light plane's frame
         Vec3 axis{0.0};  // a ball: unit direction from the origin to its centre
         double spread = 0.0;  // its angular radius
         double cosSpread = 1.0, sinSpread = 0.0;
@@ -64,6 +82,9 @@ private:
         double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
+    // A lower bound on the distance in the light's plane from the point (plane coordinates
+    // px, py; `dist` from the origin along unit `towards`) to footprint f; 0 inside it.
+    static double distanceTo(const Footprint& f, double px, double py, double dist, const Vec3& towards);
     bool outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const;
     bool hiddenBy(double u0, double v0, double u1, double v1, Spread& sp) const;
     bool inCone(const Footprint& f, double u0, double v0, double u1, double v1, Spread& sp) const;
@@ -74,6 +95,8 @@ private:
     static int hull(const double u[8], const double v[8], double hu[8], double hv[8]);
     // The unit outward normals of the hull's n edges.
     static void normals(const double u[8], const double v[8], int n, double nu[8], double nv[8]);
+    // The n light points (u[i], v[i]) in the light plane's orthonormal frame (mPlaneX, mPlaneY).
+    void toPlane(const double u[8], const double v[8], int n, double x[8], double y[8]) const;
 
     std::vector<Footprint> mFootprints;
     std::vector<Kernel> mKernels;

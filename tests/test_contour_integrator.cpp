@@ -179,7 +179,9 @@ TEST_CASE("the gradient agrees with finite differences of the exact form factor"
     int checked = 0;
     for (const Receiver& r : penumbraLine(40)) {
         const Estimate e = aci.evaluate(r, light, query);
-        if (e.counts.secondLevelRays == 0) continue;  // lit or umbra: no contour inside
+        // Lit or umbra: no contour inside.
+        const double exactF = exactSphere(r, light);
+        if (!(exactF > 0.0 && exactF < unoccludedFormFactor(light, r) * (1.0 - 1e-9))) continue;
         const double h = 1e-4;
         Vec3 fd;
         for (int k = 0; k < 3; ++k) {

@@ -4,8 +4,11 @@
 // obstacle kind (analytic spheres and boxes; level-set spheres, boxes, cylinders, capsules,
 // tori), half the light samples aimed around the obstacles' shadows; and every light point within
 // the footprints' distance of a sample (LightFootprints::distance, the disc a sample answered
-// without a ray proves) visible. None may be trivial: most of the light lies outside the
-// footprints, the kernels prove some of the shadow, nearly every point outside has a disc.
+// without a ray proves) visible; and a point one kernel hides outside every other footprint
+// (LightFootprints::hiddenAt) blocked first by that obstacle, where hiddenAt says the segment
+// enters it, every point within its radius hidden. None may be trivial: most of the light lies
+// outside the footprints, the kernels prove some of the shadow, nearly every point outside has
+// a disc, most kernel-hidden points are hidden by one obstacle alone.
 #include <catch2/catch.hpp>
 
 #include <algorithm>
@@ -25,7 +28,7 @@ using namespace penumbra;
 namespace {
 
 struct Counts {
-    long outside = 0, hidden = 0, samples = 0, violations = 0, discs = 0;
+    long outside = 0, hidden = 0, samples = 0, violations = 0, discs = 0, hiddenDiscs = 0;
 };
 
 // Receiver points: on the ground plane z = 0 in [-r, r]^2, facing up.
@@ -75,6 +78,27 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
                     CHECK(false);
                 }
             }
+            // A point one obstacle's kernel hides, outside every other footprint: a ray finds
+            // it hidden by that obstacle, entering where hiddenAt says, and every light point
+            // within its radius hidden too (checked just inside the rim).
+            const LightFootprints::Hidden h = fp.hiddenAt(u, v);
+            if (h.radius > 0.0) {
+                ++counts.hiddenDiscs;
+                const Vec3 target = light.point(u, v);
+                double tHit = 0.0;
+                const bool blocked = q.occluded(origin, target, &tHit);
+                const double fraction = tHit / glm::length(target - origin);
+                const Vec3 ex = glm::normalize(light.edgeU), ey = glm::cross(n, ex);
+                const double a = 2.0 * kPi * unit(rng);
+                const Vec3 rim = target + 0.999 * h.radius * (std::cos(a) * ex + std::sin(a) * ey);
+                if (!blocked || q.lastBlocker() != h.obstacle || std::abs(fraction - h.fraction) > 1e-6 ||
+                    !q.occluded(origin, rim)) {
+                    ++counts.violations;
+                    CAPTURE(origin, u, v, h.radius, h.obstacle, h.fraction, blocked, fraction);
+                    CHECK(false);
+                }
+                CHECK(fp.hidden(u, v, u, v));
+            }
             const bool outside = fp.outside(u, v, u, v), hidden = fp.hidden(u, v, u, v);
             CHECK_FALSE((outside && hidden));
             if (!outside && !hidden) continue;
@@ -114,7 +138,8 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
     }
     WARN("footprints: " << counts.samples << " light samples, " << counts.outside
                         << " outside every footprint, " << counts.hidden << " in a kernel's shadow, "
-                        << counts.discs << " with a disc, " << counts.violations
+                        << counts.discs << " with a disc, " << counts.hiddenDiscs
+                        << " hidden by one obstacle alone, " << counts.violations
                         << " answered otherwise by a ray");
     CHECK(counts.violations == 0);
     // Not trivial: most of these lights lies outside the footprints of obstacles this small.
@@ -122,6 +147,7 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
     CHECK(counts.outside < counts.samples * 0.95);  // and many samples near the borders
     CHECK(counts.hidden > counts.samples / 50);      // kernels prove some shadow too
     CHECK(counts.discs > counts.outside * 9 / 10);   // and nearly every point outside a disc
+    CHECK(counts.hiddenDiscs > counts.hidden / 2);   // and most kernel-hidden points one alone
 }
 
 TEST_CASE("light footprints: none from a point an obstacle's solid box reaches behind",
