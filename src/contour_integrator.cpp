@@ -188,7 +188,8 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
                 scratch.mGeometry[idx] = RayGeometry{};
                 scratch.mGeometry[idx].hider = static_cast<float>(h.obstacle);
             }
-            scratch.mPending[idx] = self.mSettings.distanceGuided ? kPendingUntraced : 0;
+            scratch.mPending[idx] = (self.mSettings.distanceGuided ? kPendingUntraced : 0) |
+                                    (h.exact ? 0 : kPendingHit);
             s = static_cast<float>(std::clamp(h.fraction, 0.01, 1.0));
             const auto b = static_cast<uint32_t>(h.obstacle);
             if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
@@ -218,7 +219,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         ray = traceRay(query, origin, target, self.mSettings,
                        firstLevel || certifyNext ? (wantWhole ? want : wantSquare) : 0.0,
                        self.mSettings.distanceGuided && !lazy);
-        scratch.mPending[idx] = lazy;
+        scratch.mPending[idx] = lazy ? kPendingClearance : 0;
         if (kept) *kept = ray;
     }
     clear = ray.clear;
@@ -245,9 +246,10 @@ void ContourIntegrator::Lattice::recordCertificate(size_t idx, LatticePoint q, c
 // (sample()'s lazy rays): the same march, the same values, not counted as another ray.
 size_t ContourIntegrator::Lattice::settle(LatticePoint q) const {
     const size_t idx = index(q);
-    if (scratch.mPending[idx] && scratch.mStamp[idx] == scratch.mGeneration) {
-        if (scratch.mPending[idx] == kPendingUntraced) ++counts.footprintClearances;
-        scratch.mPending[idx] = 0;
+    uint8_t& pending = scratch.mPending[idx];
+    if ((pending & (kPendingClearance | kPendingUntraced)) && scratch.mStamp[idx] == scratch.mGeneration) {
+        if (pending & kPendingUntraced) ++counts.footprintClearances;
+        pending &= uint8_t(~(kPendingClearance | kPendingUntraced));
         const Vec3 target = pointOf(q);
         const Clearance c = query.clearance(origin, target, scratch.mSample[idx] != kVisible);
         RayGeometry unused;
@@ -255,6 +257,22 @@ size_t ContourIntegrator::Lattice::settle(LatticePoint q) const {
                         self.mSettings.tangentContour ? scratch.mGeometry[idx] : unused);
     }
     return idx;
+}
+
+float ContourIntegrator::Lattice::hitFraction(LatticePoint q) {
+    const size_t idx = index(q);
+    float& s = scratch.mSample[idx];
+    if ((scratch.mPending[idx] & kPendingHit) && self.mSettings.gradient &&
+        scratch.mStamp[idx] == scratch.mGeneration) {
+        scratch.mPending[idx] &= uint8_t(~kPendingHit);
+        const Vec3 target = pointOf(q);
+        ++counts.secondLevelRays;
+        if (self.mSettings.rayLog) self.mSettings.rayLog->push_back(target);
+        double tHit = 0.0;
+        if (query.occluded(origin, target, &tHit))
+            s = static_cast<float>(std::clamp(tHit / glm::length(target - origin), 0.01, 1.0));
+    }
+    return s;
 }
 
 ContourIntegrator::ContourIntegrator(const AciSettings& settings)

@@ -79,7 +79,12 @@ struct Uncovered {  // a cell of the light no disc proves yet
 
 constexpr float kVisible = -1.0f;
 constexpr float kBelowHorizon = -2.0f;  // hidden by the receiver's own tangent plane, no ray
-constexpr uint8_t kPendingUntraced = 2;  // Scratch::mPending: answered by footprints, no ray yet
+// Scratch::mPending, bits: the sample's clearance is not measured yet (traced: kPendingClearance;
+// answered by the footprints, no ray: kPendingUntraced), and its hit fraction is only an
+// estimate (a level set's kernel ball: the surface lies before it; hitFraction() traces then).
+constexpr uint8_t kPendingClearance = 1;
+constexpr uint8_t kPendingUntraced = 2;
+constexpr uint8_t kPendingHit = 4;
 constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the horizon line
 // With coverage: an evaluation whose coverage rays ran out with more than this share of the
 // light's area unproven restarts once one level deeper (contour_integrator.cpp).
@@ -159,8 +164,7 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mStamp;  // generation stamps of the sample lattice
     std::vector<float> mSample;    // >= 0: hidden, hit fraction along the ray; -1 visible
     std::vector<float> mClear;     // signed angular clearance of the sample's ray, NaN unknown
-    std::vector<uint8_t> mPending;  // 1: the sample's clearance is not measured yet;
-                                    // kPendingUntraced: nor was a ray traced (footprints)
+    std::vector<uint8_t> mPending;  // kPendingClearance, kPendingUntraced, kPendingHit
     std::vector<RayGeometry> mGeometry;  // tangent mode: each sample's ray geometry
     std::vector<Certificate> mCert;  // coverage: each sample's certificate
     std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
@@ -232,6 +236,9 @@ struct ContourIntegrator::Lattice {
             FirstLevelGrid grid, int steps);
     float& sample(LatticePoint q, bool firstLevel);
     size_t settle(LatticePoint q) const;
+    // Hidden sample q's hit fraction (where its segment first meets a surface), its ray traced
+    // now when the footprints left only an estimate and the gradient needs the 3D point.
+    float hitFraction(LatticePoint q);
 
     Vec3 pointOf(LatticePoint q) const { return at(q.a, q.b); }
     // The light point at lattice coordinates (a, b), which need not be integers.
@@ -307,7 +314,8 @@ struct ContourIntegrator::Lattice {
     const Vertex* knownCrossing(LatticePoint vis, LatticePoint hid);
     Vertex crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps, LatticePoint& finalVis,
                              LatticePoint& finalHid);
-    Vertex vertexBetween(LatticePoint vis, LatticePoint hid, double f);
+    // `hit`: place the 3D point at the hidden end's hit fraction (false: the caller places it).
+    Vertex vertexBetween(LatticePoint vis, LatticePoint hid, double f, bool hit = true);
     void emit(const Vec3& a, const Vec3& b, double weight = 1.0);
     struct KnownCrossing {
         LatticePoint vis, hid;  // its final bracket

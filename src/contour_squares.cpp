@@ -463,8 +463,9 @@ Vertex ContourIntegrator::Lattice::crossingOnSegment(LatticePoint vis, LatticePo
 }
 
 // The contour vertex at fraction f of the final interval vis -> hid.
-Vertex ContourIntegrator::Lattice::vertexBetween(LatticePoint vis, LatticePoint hid, double f) {
-    const float h = peek(hid);
+Vertex ContourIntegrator::Lattice::vertexBetween(LatticePoint vis, LatticePoint hid, double f,
+                                                bool hit) {
+    const float h = hit && peek(hid) != kBelowHorizon ? hitFraction(hid) : peek(hid);
     const Vec3 pv = pointOf(vis), ph = pointOf(hid);
     Vertex v;
     if (h == kBelowHorizon) {

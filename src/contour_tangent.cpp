@@ -274,8 +274,11 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
         const double root = fieldRoot(at(g.from), p0, step, g.from, e, lo, hi, true);
         if (std::isfinite(root)) e = root;
     }
-    Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo));
+    // The 3D point from a grazing ray below when there is one; else from the hidden end's hit.
+    Vertex v = vertexBetween(at(lo), at(hi), (e - lo) / std::max(1, hi - lo), false);
+    bool placed = false;
     if (peek(at(hi)) == kBelowHorizon) {
+        placed = true;
         // On the horizon the contour is the (straight) line where the receiver's tangent
         // plane cuts the light: its plane through M is that tangent plane. On a polygon
         // light's edge or a disc light's circle, the plane through M and the border's
@@ -303,9 +306,11 @@ Vertex ContourIntegrator::Lattice::crossingNewton(LatticePoint vis, LatticePoint
             // over to the vertex's own ray.
             const double h = closestFractionOf(at(j));
             if (h > 0.0) v.i = origin + h * (v.c - origin);
+            placed = h > 0.0;
             v.obstacle = obstacleOf(at(j));
             break;
         }
+        if (!placed) v.i = rec.point + double(hitFraction(at(hi))) * (v.c - rec.point);
     }
     return v;
 }

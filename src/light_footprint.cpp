@@ -73,6 +73,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             if (!(along - reach > 1e-9 && along + reach < 1.0 - 1e-9 && b.radius < dist)) continue;
             Kernel ker;
             ker.obstacle = int(i);
+            ker.exact = occ.voxelSize(i) == 0.0;
             ker.centre = b.centre;
             ker.radius = b.radius;
             ker.axis = (b.centre - origin) / dist;
@@ -292,6 +293,7 @@ LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
     out.others = std::isfinite(others) ? std::max(0.0, others * (1.0 - 1e-9) - 1e-9 * dist) : 1e300;
     out.obstacle = best->obstacle;
     out.fraction = std::clamp(t, 0.0, 1.0);
+    out.exact = best->exact;
     if (!(out.radius > 0.0)) return Hidden{};
     return out;
 }

@@ -41,6 +41,9 @@ public:
         double radius = 0.0;    ///< every light point nearer is hidden too (world units); 0: none
         int obstacle = -1;      ///< the obstacle whose kernel hides it, the segment's first
         double fraction = 0.0;  ///< where the segment enters that kernel, origin 0, light 1
+        /// Whether that is where it enters the obstacle (an analytic kernel is the obstacle
+        /// itself); else the obstacle's surface lies somewhere before it.
+        bool exact = false;
         double others = 0.0;    ///< every light point nearer lies outside the other footprints
     };
     /// Light point (u, v) inside the projection of an obstacle's kernel and outside every other
@@ -70,6 +73,7 @@ private:
     };
     struct Kernel {
         bool ball = true;
+        bool exact = true;  // the obstacle itself (analytic), not a ball inside a level set
         int obstacle = -1;
         Vec3 centre{0.0};     // a ball: its centre and radius
         double radius = 0.0;

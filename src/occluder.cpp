@@ -232,12 +232,52 @@ struct Occluder::FarField {
     /// The level set's cell tables (LevelSet::cellTables), or null.
     const CellTables* cells() const { return levelSet->cellTables(); }
 
+    /// Balls wholly inside the fine surface, from the companion (Occluder::kernelBalls): at a
+    /// companion voxel of value vc < 0 the fine surface's signed distance is at most vc plus the
+    /// companion's error (the certificates' own bound, levelSetRadius), so a ball of radius
+    /// -vc - worst() there lies inside. Greedy: the deepest first, then each next deepest whose
+    /// own ball is not mostly inside one already kept (its centre farther than its radius less
+    /// half of it from there), at most kKernelBalls, none under a quarter of the deepest's radius
+    /// nor under two fine voxels.
+    const std::vector<Occluder::KernelBall>& balls() const {
+        std::call_once(ballsOnce, [&] {
+            const openvdb::FloatGrid& coarse = get();
+            const double worst = error().worst();
+            const double bandC = 0.98 * double(coarse.background());
+            const double hf = levelSet->grid().voxelSize()[0];
+            std::vector<Occluder::KernelBall> candidates;
+            for (auto it = coarse.cbeginValueOn(); it; ++it) {
+                const double depth = std::min(-double(*it), bandC) - worst;
+                if (!(depth > 2.0 * hf)) continue;
+                const openvdb::Vec3d w = coarse.indexToWorld(it.getCoord());
+                candidates.push_back({Vec3(w.x(), w.y(), w.z()), depth * (1.0 - 1e-6)});
+            }
+            std::stable_sort(candidates.begin(), candidates.end(),
+                             [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
+                                 return a.radius > b.radius;
+                             });
+            for (const Occluder::KernelBall& c : candidates) {
+                if (ballsValue.size() >= size_t(kKernelBalls) ||
+                    (!ballsValue.empty() && c.radius < 0.25 * ballsValue.front().radius))
+                    break;
+                bool novel = true;
+                for (const Occluder::KernelBall& b : ballsValue)
+                    if (glm::length(c.centre - b.centre) + 0.5 * c.radius <= b.radius) novel = false;
+                if (novel) ballsValue.push_back(c);
+            }
+        });
+        return ballsValue;
+    }
+
     LevelSetPtr levelSet;
     mutable std::once_flag errorOnce;
     mutable std::unique_ptr<CompanionError> errorValue;
+    mutable std::once_flag ballsOnce;
+    mutable std::vector<Occluder::KernelBall> ballsValue;
 };
 
 const std::vector<Occluder::KernelBall>& Occluder::kernelBalls(size_t i) const {
+    if (mFar[i]) return mFar[i]->balls();
     return mSphereKernels[i];
 }
 

@@ -29,6 +29,7 @@ namespace {
 
 struct Counts {
     long outside = 0, hidden = 0, samples = 0, violations = 0, discs = 0, hiddenDiscs = 0;
+    long hiddenExact = 0, hiddenBalls = 0;  // of hiddenDiscs: analytic kernels, level sets' balls
 };
 
 // Receiver points: on the ground plane z = 0 in [-r, r]^2, facing up.
@@ -91,7 +92,12 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
                 const Vec3 ex = glm::normalize(light.edgeU), ey = glm::cross(n, ex);
                 const double a = 2.0 * kPi * unit(rng);
                 const Vec3 rim = target + 0.999 * h.radius * (std::cos(a) * ex + std::sin(a) * ey);
-                if (!blocked || q.lastBlocker() != h.obstacle || std::abs(fraction - h.fraction) > 1e-6 ||
+                // An analytic kernel is the obstacle: the same entry. A level set's kernel
+                // ball lies inside its surface: the ray meets the surface first.
+                const bool entry = h.exact ? std::abs(fraction - h.fraction) <= 1e-6
+                                           : fraction <= h.fraction + 1e-6;
+                (h.exact ? counts.hiddenExact : counts.hiddenBalls)++;
+                if (!blocked || q.lastBlocker() != h.obstacle || !entry ||
                     !q.occluded(origin, rim)) {
                     ++counts.violations;
                     CAPTURE(origin, u, v, h.radius, h.obstacle, h.fraction, blocked, fraction);
@@ -139,7 +145,8 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
     WARN("footprints: " << counts.samples << " light samples, " << counts.outside
                         << " outside every footprint, " << counts.hidden << " in a kernel's shadow, "
                         << counts.discs << " with a disc, " << counts.hiddenDiscs
-                        << " hidden by one obstacle alone, " << counts.violations
+                        << " hidden by one obstacle alone (" << counts.hiddenBalls
+                        << " by a level set's kernel ball), " << counts.violations
                         << " answered otherwise by a ray");
     CHECK(counts.violations == 0);
     // Not trivial: most of these lights lies outside the footprints of obstacles this small.
@@ -148,6 +155,8 @@ TEST_CASE("light footprints: every light point outside them is visible, every on
     CHECK(counts.hidden > counts.samples / 50);      // kernels prove some shadow too
     CHECK(counts.discs > counts.outside * 9 / 10);   // and nearly every point outside a disc
     CHECK(counts.hiddenDiscs > counts.hidden / 2);   // and most kernel-hidden points one alone
+    CHECK(counts.hiddenExact > 1000);                // by analytic kernels
+    CHECK(counts.hiddenBalls > 1000);                // and by level sets' balls
 }
 
 TEST_CASE("light footprints: none from a point an obstacle's solid box reaches behind",

@@ -132,13 +132,15 @@ public:
     const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
     double solidRadius(size_t i) const { return mSolid[i].radius; }
     /// A ball that blocks every segment meeting it (one that starts outside it).
+    static constexpr int kKernelBalls = 8;
     struct KernelBall {
         Vec3 centre{0.0};
         double radius = 0.0;
     };
-    /// Balls inside obstacle i: an analytic sphere itself; none for other kinds. (Level sets
-    /// could offer balls of their cell tables' inside cells: tried, their scan cost a Table 1
-    /// render 17% for no fewer rays; docs/BENCHMARKS.md.)
+    /// Balls inside obstacle i: an analytic sphere itself; for a level set, up to kKernelBalls
+    /// of the deepest balls its far-field companion proves inside the surface (built with the
+    /// companion when first asked for); none for other kinds. (Balls of the cell tables'
+    /// inside cells, a voxel or two deep, were tried before: no fewer rays; docs/BENCHMARKS.md.)
     const std::vector<KernelBall>& kernelBalls(size_t i) const;
     /// An analytic box itself (every segment meeting it is blocked); empty for other kinds.
     Box3 kernelBox(size_t i) const;
