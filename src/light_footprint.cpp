@@ -209,8 +209,10 @@ double LightFootprints::distanceTo(const Footprint& f, double px, double py, dou
         if (f.nx[i] != 0.0 || f.ny[i] != 0.0)
             hull = std::max(hull, (px - f.x[i]) * f.nx[i] + (py - f.y[i]) * f.ny[i]);
     double cone = 0.0;
-    if (f.spread < kPi) {
-        const double apart = std::acos(std::clamp(glm::dot(towards, f.axis), -1.0, 1.0));
+    // Inside the cone (its cosine at least the spread's) the cone proves nothing: no angle.
+    const double cosApart = glm::dot(towards, f.axis);
+    if (f.spread < kPi && cosApart < f.cosSpread) {
+        const double apart = std::acos(std::clamp(cosApart, -1.0, 1.0));
         const double past = apart - f.spread;
         if (past > 0.0) cone = dist * std::sin(std::min(past, 0.5 * kPi));
     }
@@ -252,7 +254,10 @@ LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
     for (const Kernel& k : mKernels) {
         double inside = 0.0;
         if (k.ball) {
-            const double apart = std::acos(std::clamp(glm::dot(towards, k.axis), -1.0, 1.0));
+            // Outside the cone (its cosine below the spread's) nothing is hidden: no angle.
+            const double cosApart = glm::dot(towards, k.axis);
+            if (!(cosApart > k.cosSpread)) continue;
+            const double apart = std::acos(std::clamp(cosApart, -1.0, 1.0));
             if (apart < k.spread) inside = dist * std::sin(k.spread - apart);
         } else {
             inside = std::numeric_limits<double>::infinity();
