@@ -238,7 +238,7 @@ struct Occluder::FarField {
     /// -vc - worst() there lies inside. Greedy: the deepest first, then each next deepest whose
     /// own ball is not mostly inside one already kept (its centre farther than its radius less
     /// half of it from there), at most kKernelBalls, none under a quarter of the deepest's radius
-    /// nor under two fine voxels.
+    /// nor under two fine voxels; each checked inside against the fine grid too.
     const std::vector<Occluder::KernelBall>& balls() const {
         std::call_once(ballsOnce, [&] {
             const openvdb::FloatGrid& coarse = get();
@@ -256,6 +256,17 @@ struct Occluder::FarField {
                              [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
                                  return a.radius > b.radius;
                              });
+            // The fine grid must agree that the ball is inside, at its centre and at six points
+            // nine tenths of the way to its surface: a companion meshed from a surface that is
+            // not closed could call some outside region inside, and a ball there would hide
+            // light points no ray is blocked towards.
+            const openvdb::FloatGrid& fine = levelSet->grid();
+            auto fineAcc = fine.getConstAccessor();
+            auto inside = [&](const Vec3& p) {
+                const openvdb::Coord ijk =
+                    fine.transform().worldToIndexNodeCentered(openvdb::Vec3d(p.x, p.y, p.z));
+                return fineAcc.getValue(ijk) < 0.0f;
+            };
             for (const Occluder::KernelBall& c : candidates) {
                 if (ballsValue.size() >= size_t(kKernelBalls) ||
                     (!ballsValue.empty() && c.radius < 0.25 * ballsValue.front().radius))
@@ -263,7 +274,15 @@ struct Occluder::FarField {
                 bool novel = true;
                 for (const Occluder::KernelBall& b : ballsValue)
                     if (glm::length(c.centre - b.centre) + 0.5 * c.radius <= b.radius) novel = false;
-                if (novel) ballsValue.push_back(c);
+                if (!novel || !inside(c.centre)) continue;
+                bool agreed = true;
+                for (int axis = 0; axis < 3 && agreed; ++axis)
+                    for (double side : {-0.9, 0.9}) {
+                        Vec3 p = c.centre;
+                        p[axis] += side * c.radius;
+                        agreed = agreed && inside(p);
+                    }
+                if (agreed) ballsValue.push_back(c);
             }
         });
         return ballsValue;
