@@ -202,8 +202,9 @@ void LightFootprints::toPlane(const double u[8], const double v[8], int n, doubl
 // larger of theirs: the hull's at least the largest signed distance past one of its edges' lines
 // (the hull being convex), the cone's at least |Q - M| sin(angle past the cone) (the nearest a
 // ray from M at that angle from MQ comes to Q).
-double LightFootprints::distanceTo(const Footprint& f, double px, double py, double dist,
-                                   const Vec3& towards) {
+double LightFootprints::distanceTo(const Footprint& f, const LightPoint& lp) {
+    const double px = lp.x, py = lp.y, dist = lp.dist;
+    const Vec3& towards = lp.towards;
     double hull = f.n >= 3 ? -std::numeric_limits<double>::infinity() : 0.0;
     for (int i = 0; i < f.n && f.n >= 3; ++i)
         if (f.nx[i] != 0.0 || f.ny[i] != 0.0)
@@ -219,21 +220,28 @@ double LightFootprints::distanceTo(const Footprint& f, double px, double py, dou
     return std::max({hull, cone, 0.0});
 }
 
-double LightFootprints::distance(double u, double v) const {
-    if (!mBounded) return 0.0;
+LightFootprints::LightPoint LightFootprints::pointAt(double u, double v) const {
+    LightPoint lp;
     const Vec3 q = mLight->point(u, v);
     const Vec3 p = q - mLight->corner;
-    const double px = glm::dot(p, mPlaneX), py = glm::dot(p, mPlaneY);
-    const Vec3 d = q - mOrigin;
-    const double dist = glm::length(d);
-    const Vec3 towards = d / dist;
+    lp.x = glm::dot(p, mPlaneX);
+    lp.y = glm::dot(p, mPlaneY);
+    lp.d = q - mOrigin;
+    lp.dist = glm::length(lp.d);
+    lp.towards = lp.d / lp.dist;
+    return lp;
+}
+
+double LightFootprints::distance(double u, double v) const {
+    if (!mBounded) return 0.0;
+    const LightPoint lp = pointAt(u, v);
     double nearest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
-        nearest = std::min(nearest, distanceTo(f, px, py, dist, towards));
+        nearest = std::min(nearest, distanceTo(f, lp));
         if (!(nearest > 0.0)) return 0.0;
     }
     // A margin far above rounding.
-    return std::max(0.0, nearest * (1.0 - 1e-9) - 1e-9 * dist);
+    return std::max(0.0, nearest * (1.0 - 1e-9) - 1e-9 * lp.dist);
 }
 
 // Inside a kernel's projection the distance to its outside is at least, for a ball, |Q - M|
@@ -244,12 +252,10 @@ double LightFootprints::distance(double u, double v) const {
 LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
     Hidden out;
     if (!mBounded || mKernels.empty()) return out;
-    const Vec3 q = mLight->point(u, v);
-    const Vec3 p = q - mLight->corner;
-    const double px = glm::dot(p, mPlaneX), py = glm::dot(p, mPlaneY);
-    const Vec3 d = q - mOrigin;
-    const double dist = glm::length(d);
-    const Vec3 towards = d / dist;
+    const LightPoint lp = pointAt(u, v);
+    const double px = lp.x, py = lp.y, dist = lp.dist;
+    const Vec3& d = lp.d;
+    const Vec3& towards = lp.towards;
     const Kernel* best = nullptr;
     for (const Kernel& k : mKernels) {
         double inside = 0.0;
@@ -276,7 +282,7 @@ LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
     double others = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
         if (f.obstacle == best->obstacle) continue;
-        others = std::min(others, distanceTo(f, px, py, dist, towards));
+        others = std::min(others, distanceTo(f, lp));
         if (!(others > 0.0)) return Hidden{};
     }
     double t = 0.0;

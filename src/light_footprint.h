@@ -86,9 +86,18 @@ private:
         double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
-    // A lower bound on the distance in the light's plane from the point (plane coordinates
-    // px, py; `dist` from the origin along unit `towards`) to footprint f; 0 inside it.
-    static double distanceTo(const Footprint& f, double px, double py, double dist, const Vec3& towards);
+    // A light point: its coordinates in the plane's frame, and its offset from the origin
+    // (d; its length and direction).
+    struct LightPoint {
+        double x = 0.0, y = 0.0;
+        Vec3 d{0.0};
+        double dist = 0.0;
+        Vec3 towards{0.0};
+    };
+    LightPoint pointAt(double u, double v) const;
+    // A lower bound on the distance in the light's plane from the point to footprint f; 0
+    // inside it.
+    static double distanceTo(const Footprint& f, const LightPoint& lp);
     bool outsideAll(double u0, double v0, double u1, double v1, Spread& sp) const;
     bool hiddenBy(double u0, double v0, double u1, double v1, Spread& sp) const;
     bool inCone(const Footprint& f, double u0, double v0, double u1, double v1, Spread& sp) const;
