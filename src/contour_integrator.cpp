@@ -160,28 +160,25 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     }
     if (self.mSettings.coverage && !kept) {
         // A sample outside every obstacle's footprint is visible, and so is every light point
-        // nearer than the footprints: a disc of that radius, without a ray. Its clearance is
-        // measured only if the tangent construction asks (settle(), like a traced ray's).
-        const double u = double(q.a) / Na, v = double(q.b) / Nb;
-        const double r = std::min(want, scratch.mFootprints.distance(u, v));
-        if (r > 0.0) {
-            ++counts.footprintSamples;
-            clear = std::numeric_limits<float>::quiet_NaN();
-            if (self.mSettings.tangentContour) scratch.mGeometry[idx] = RayGeometry{};
-            scratch.mPending[idx] = self.mSettings.distanceGuided ? kPendingUntraced : 0;
-            s = kVisible;
-            Certificate c;
-            c.radius = r;
-            c.radiusOthers = r;
-            recordCertificate(idx, q, c);
-            return s;
+        // nearer than the footprints: a disc of that radius, without a ray. Likewise a sample
+        // inside one obstacle's kernel and outside every other footprint is hidden by that
+        // obstacle, first along its segment where it enters the kernel: what a ray would have
+        // found (its hit fraction, its blocker), and a disc of the kernel's distance. Their
+        // clearance is measured only if the tangent construction asks (settle(), like a traced
+        // ray's).
+        const LightFootprints::LightPoint lp = scratch.mFootprints.pointAt(double(q.a) / Na, double(q.b) / Nb);
+        Certificate c;
+        c.radius = std::min(want, scratch.mFootprints.distance(lp));
+        c.radiusOthers = c.radius;
+        LightFootprints::Hidden h;
+        if (!(c.radius > 0.0)) {
+            h = scratch.mFootprints.hiddenAt(lp);
+            c.radius = std::min(want, h.radius);
+            c.obstacle = h.obstacle;
+            c.radiusOthers = std::min(c.radius, h.others);
         }
-        // Likewise a sample inside one obstacle's kernel and outside every other footprint is
-        // hidden by that obstacle, first along its segment where it enters the kernel: what a
-        // ray would have found (its hit fraction, its blocker), and a disc of the kernel's
-        // distance, without a ray.
-        const LightFootprints::Hidden h = scratch.mFootprints.hiddenAt(u, v);
-        if (h.radius > 0.0) {
+        if (c.radius > 0.0) {
+            const bool hidden = h.obstacle >= 0;
             ++counts.footprintSamples;
             clear = std::numeric_limits<float>::quiet_NaN();
             if (self.mSettings.tangentContour) {
@@ -189,14 +186,9 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
                 scratch.mGeometry[idx].hider = static_cast<float>(h.obstacle);
             }
             scratch.mPending[idx] = (self.mSettings.distanceGuided ? kPendingUntraced : 0) |
-                                    (h.exact ? 0 : kPendingHit);
-            s = static_cast<float>(std::clamp(h.fraction, 0.01, 1.0));
-            const auto b = static_cast<uint32_t>(h.obstacle);
-            if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
-            Certificate c;
-            c.radius = std::min(want, h.radius);
-            c.obstacle = h.obstacle;
-            c.radiusOthers = std::min(c.radius, h.others);
+                                    (hidden && !h.exact ? kPendingHit : 0);
+            s = hidden ? static_cast<float>(std::clamp(h.fraction, 0.01, 1.0)) : kVisible;
+            noteBlocker(h.obstacle);
             recordCertificate(idx, q, c);
             return s;
         }
@@ -225,12 +217,16 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     clear = ray.clear;
     if (self.mSettings.tangentContour) scratch.mGeometry[idx] = ray.geometry;
     s = ray.sample;
-    if (ray.blocker >= 0) {
-        const auto b = static_cast<uint32_t>(ray.blocker);
-        if (scratch.mBlockers.empty() || scratch.mBlockers.back() != b) scratch.mBlockers.push_back(b);
-    }
+    noteBlocker(ray.blocker);
     if (self.mSettings.coverage) recordCertificate(idx, q, ray.cert);
     return s;
+}
+
+// Lists obstacle b among those that blocked rays this time (none when negative).
+void ContourIntegrator::Lattice::noteBlocker(int b) {
+    if (b < 0) return;
+    const auto i = static_cast<uint32_t>(b);
+    if (scratch.mBlockers.empty() || scratch.mBlockers.back() != i) scratch.mBlockers.push_back(i);
 }
 
 // Keeps sample q's certificate, and its disc for coverage when it proves one.

@@ -359,6 +359,7 @@ struct ContourIntegrator::Lattice {
     static double distanceToSegment(const Vec3& p, const Segment& g);
     static double distance2ToSegment(const Vec3& p, const Segment& g);
     void recordCertificate(size_t idx, LatticePoint q, const Certificate& c);
+    void noteBlocker(int b);
     // How far from a contour segment coverage looks at it: its gaps (a cell within coverageGap x
     // epsilon of a piece's strip is near proven ground) and uncoveredCells' final test (within
     // epsilon of a piece).

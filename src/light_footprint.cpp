@@ -232,9 +232,8 @@ LightFootprints::LightPoint LightFootprints::pointAt(double u, double v) const {
     return lp;
 }
 
-double LightFootprints::distance(double u, double v) const {
+double LightFootprints::distance(const LightPoint& lp) const {
     if (!mBounded) return 0.0;
-    const LightPoint lp = pointAt(u, v);
     double nearest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
         nearest = std::min(nearest, distanceTo(f, lp));
@@ -249,10 +248,9 @@ double LightFootprints::distance(double u, double v) const {
 // direction still inside), and for a box the smallest distance inside its hull's edge lines.
 // The segment enters the kernel where a ray meets a ball or a box: the nearer root of the
 // quadratic, the largest of the slabs' entries.
-LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
+LightFootprints::Hidden LightFootprints::hiddenAt(const LightPoint& lp) const {
     Hidden out;
     if (!mBounded || mKernels.empty()) return out;
-    const LightPoint lp = pointAt(u, v);
     const double px = lp.x, py = lp.y, dist = lp.dist;
     const Vec3& d = lp.d;
     const Vec3& towards = lp.towards;
@@ -301,7 +299,7 @@ LightFootprints::Hidden LightFootprints::hiddenAt(double u, double v) const {
     }
     // Margins far above rounding.
     out.radius = std::max(0.0, out.radius * (1.0 - 1e-9) - 1e-9 * dist);
-    out.others = std::isfinite(others) ? std::max(0.0, others * (1.0 - 1e-9) - 1e-9 * dist) : 1e300;
+    out.others = std::max(0.0, others * (1.0 - 1e-9) - 1e-9 * dist);  // infinite when alone
     out.obstacle = best->obstacle;
     out.fraction = std::clamp(t, 0.0, 1.0);
     out.exact = best->exact;

@@ -35,7 +35,18 @@ public:
     /// A lower bound on the distance, in the light's plane (world units), from light point
     /// (u, v) to every footprint: every light point nearer than that is visible too. 0 when the
     /// point lies in some footprint, or none is bounded.
-    double distance(double u, double v) const;
+    double distance(double u, double v) const { return distance(pointAt(u, v)); }
+    /// A light point as distance() and hiddenAt() read it (found once for both): its
+    /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
+    /// (d; its length and direction).
+    struct LightPoint {
+        double x = 0.0, y = 0.0;
+        Vec3 d{0.0};
+        double dist = 0.0;
+        Vec3 towards{0.0};
+    };
+    LightPoint pointAt(double u, double v) const;
+    double distance(const LightPoint& lp) const;
     /// A light point hidden by one obstacle alone, as a traced ray would find it.
     struct Hidden {
         double radius = 0.0;    ///< every light point nearer is hidden too (world units); 0: none
@@ -50,7 +61,8 @@ public:
     /// obstacle's footprint: that obstacle blocks the segment to it, and nothing meets the
     /// segment before its kernel. Radius 0 when no kernel proves it, or the footprints are not
     /// bounded (another obstacle could meet the segment anywhere).
-    Hidden hiddenAt(double u, double v) const;
+    Hidden hiddenAt(double u, double v) const { return hiddenAt(pointAt(u, v)); }
+    Hidden hiddenAt(const LightPoint& lp) const;
 private:
     // The rectangle's directions from the origin (directions()), found when first asked for.
     struct Spread {
@@ -86,15 +98,6 @@ private:
         double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
-    // A light point: its coordinates in the plane's frame, and its offset from the origin
-    // (d; its length and direction).
-    struct LightPoint {
-        double x = 0.0, y = 0.0;
-        Vec3 d{0.0};
-        double dist = 0.0;
-        Vec3 towards{0.0};
-    };
-    LightPoint pointAt(double u, double v) const;
     // A lower bound on the distance in the light's plane from the point to footprint f; 0
     // inside it.
     static double distanceTo(const Footprint& f, const LightPoint& lp);
