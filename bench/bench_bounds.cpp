@@ -10,7 +10,9 @@
 // point and normal). A check, not a timing: never fails on a figure, prints what it found.
 //
 //   bench_bounds [--seeds N] [--first-seed S] [--size 200] [--stride 4] [--samples 4096]
-//                [--confirm 1048576] [--threads 2] [--out DIR]
+//                [--confirm 1048576] [--threads 2] [--steps 5] [--out DIR]
+//
+// --steps: ACI's dichotomy steps n (5, probe's default; renders take 4 in tangent mode).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
 #include <algorithm>
@@ -45,6 +47,7 @@ namespace {
 struct Args {
     int seeds = 10, firstSeed = 1, size = 200, stride = 4, samples = 4096, confirm = 1 << 20;
     int threads = 2;
+    int steps = 5;  // AciSettings' (probe's) default
     std::string out = "/tmp/penumbra_bounds";
 };
 
@@ -111,16 +114,17 @@ int main(int argc, char** argv) {
                              {"--samples", &a.samples},
                              {"--confirm", &a.confirm},
                              {"--threads", &a.threads},
+                             {"--steps", &a.steps},
                              {"--out", &a.out}});
         if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
-            a.threads < 1)
+            a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
-                                             "and --threads must be positive");
+                                             "and --threads must be positive, --steps in [1, 12]");
         std::filesystem::create_directories(a.out);
         tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
         std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "
-                    "confirm), pixels every %d of %d x %d, %d threads\n\n",
-                    a.samples, a.confirm, a.stride, a.size, a.size, a.threads);
+                    "confirm), pixels every %d of %d x %d, %d threads, --aci-steps %d\n\n",
+                    a.samples, a.confirm, a.stride, a.size, a.size, a.threads, a.steps);
         std::printf("%-8s %7s %9s %10s %9s %12s %14s %8s\n", "scene", "points", "shadowed",
                     "violations", "rays/pt", "max err/F0", "max err/bound", "seconds");
         int totalPoints = 0, totalViolations = 0;
@@ -156,6 +160,7 @@ int main(int argc, char** argv) {
                 p.seen = true;
                 AciSettings s;
                 s.gradient = false;
+                s.steps = a.steps;
                 s.rayOffset = receiverRayOffset(occ, p.r.point, 1e-9);
                 ContourIntegrator aci(s);
                 const Estimate e = aci.evaluate(p.r, light, q);

@@ -301,6 +301,53 @@ void LevelSet::findSolid() {
     const openvdb::Vec3d cw = mGrid->indexToWorld(centre);
     mSolidCentre = Vec3(cw.x(), cw.y(), cw.z());
     mSolidRadius = (std::sqrt(far2) + grow * std::sqrt(3.0)) * mVoxelSize;
+
+    // The parts: every value <= 0 (inactive voxels and tiles too: the parts, unlike the box,
+    // need not enclose the inside) grown by `grow`, clipped to the cells of the box it meets.
+    constexpr int G = kSolidPartsPerAxis;
+    openvdb::Vec3d partLo[G * G * G], partHi[G * G * G];
+    for (int k = 0; k < G * G * G; ++k) {
+        partLo[k] = openvdb::Vec3d(1e300);
+        partHi[k] = openvdb::Vec3d(-1e300);
+    }
+    const openvdb::Vec3d cell = (hi - lo) / double(G);
+    for (auto it = mGrid->cbeginValueAll(); it; ++it) {
+        if (!(*it <= 0.0f)) continue;
+        openvdb::CoordBBox box;
+        it.getBoundingBox(box);
+        const openvdb::Vec3d a = openvdb::math::maxComponent(box.min().asVec3d() - openvdb::Vec3d(grow), lo);
+        const openvdb::Vec3d b = openvdb::math::minComponent(box.max().asVec3d() + openvdb::Vec3d(grow), hi);
+        if (!(a.x() <= b.x() && a.y() <= b.y() && a.z() <= b.z())) continue;
+        int c0[3], c1[3];
+        for (int d = 0; d < 3; ++d) {
+            c0[d] = std::clamp(int(std::floor((a[d] - lo[d]) / cell[d])), 0, G - 1);
+            c1[d] = std::clamp(int(std::floor((b[d] - lo[d]) / cell[d])), 0, G - 1);
+        }
+        for (int z = c0[2]; z <= c1[2]; ++z)
+            for (int y = c0[1]; y <= c1[1]; ++y)
+                for (int x = c0[0]; x <= c1[0]; ++x) {
+                    const int k = (z * G + y) * G + x;
+                    const openvdb::Vec3d cl = lo + openvdb::Vec3d(x, y, z) * cell;
+                    // The cell's own range (the last cell reaches hi exactly).
+                    const openvdb::Vec3d ch(x == G - 1 ? hi.x() : cl.x() + cell.x(),
+                                            y == G - 1 ? hi.y() : cl.y() + cell.y(),
+                                            z == G - 1 ? hi.z() : cl.z() + cell.z());
+                    partLo[k] = openvdb::math::minComponent(partLo[k], openvdb::math::maxComponent(a, cl));
+                    partHi[k] = openvdb::math::maxComponent(partHi[k], openvdb::math::minComponent(b, ch));
+                }
+    }
+    for (int k = 0; k < G * G * G; ++k) {
+        if (!(partLo[k].x() <= partHi[k].x())) continue;
+        Box3 part;
+        for (int c = 0; c < 8; ++c) {
+            const openvdb::Vec3d cornerIS((c & 1) ? partHi[k].x() : partLo[k].x(),
+                                          (c & 2) ? partHi[k].y() : partLo[k].y(),
+                                          (c & 4) ? partHi[k].z() : partLo[k].z());
+            const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
+            part.extend(Vec3(p.x(), p.y(), p.z()));
+        }
+        mSolidParts.push_back(part);
+    }
 }
 
 LevelSetInfo describe(const LevelSet& ls) {

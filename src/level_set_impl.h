@@ -41,6 +41,13 @@ class LevelSet {
     const Box3& solidBoundsWS() const { return mSolidWS; }
     const Vec3& solidCentreWS() const { return mSolidCentre; }
     double solidRadius() const { return mSolidRadius; }
+    /// The solid box diced into kSolidPartsPerAxis^3 cells, each shrunk to the voxels with a
+    /// value <= 0 in it (active or not, tiles too), grown by the same 1.25 voxels; cells with
+    /// none are left out (world boxes, in no order). Every point where the trilinear
+    /// interpolation is <= 0 lies in one: a tilted torus or a capsule fills a fraction of its
+    /// box, and a shadow pyramid that meets none of its parts cannot be blocked by it.
+    const std::vector<Box3>& solidPartsWS() const { return mSolidParts; }
+    static constexpr int kSolidPartsPerAxis = 8;
     double voxelSize() const { return mVoxelSize; }
 
     /// The far-field companion used for shadow-ray clearance (occluder.cpp): the same surface
@@ -84,6 +91,7 @@ class LevelSet {
     openvdb::FloatGrid::ConstPtr mGrid;
     Box3 mBoundsWS;
     Box3 mSolidWS;
+    std::vector<Box3> mSolidParts;
     Vec3 mSolidCentre{0.0};
     double mSolidRadius = 0.0;
     double mVoxelSize = 0.0;

@@ -65,7 +65,12 @@ bool Pyramid::mayMeet(const Vec3& centre, double radius) const {
 
 bool Occluder::mayBlockIn(size_t i, const Pyramid& pyramid) const {
     const Solid& s = mSolid[i];
-    return !s.box.empty() && pyramid.mayMeet(s.box) && pyramid.mayMeet(s.centre, s.radius);
+    if (s.box.empty() || !pyramid.mayMeet(s.box) || !pyramid.mayMeet(s.centre, s.radius))
+        return false;
+    // A level set's parts: a pyramid through the hole of a torus, or past a capsule's side
+    // within its box, meets none.
+    return s.parts.empty() || std::any_of(s.parts.begin(), s.parts.end(),
+                                          [&](const Box3& b) { return pyramid.mayMeet(b); });
 }
 
 size_t Occluder::Query::narrow(const Pyramid& pyramid) {

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -20,6 +21,7 @@
 #include "penumbra/camera.h"
 #include "penumbra/error.h"
 #include "penumbra/level_set.h"
+#include "penumbra/occluder.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/renderer.h"
 #include "penumbra/scene.h"
@@ -317,6 +319,78 @@ TEST_CASE("a shaft contains every segment between its two boxes", "[renderer]") 
     onPath.extend(Vec3(1.9, 1.9, 0.4));
     onPath.extend(Vec3(2.1, 2.1, 0.6));
     CHECK(diagonal.overlaps(onPath));
+}
+
+TEST_CASE("a level set's solid parts hold every point where it blocks, and leave its holes out",
+          "[renderer][occluder]") {
+    // A tilted torus and a diagonal capsule fill a fraction of their solid boxes. Every point
+    // where the interpolated field is <= 0 must lie in a part; a pyramid that meets no part
+    // (Occluder::mayBlockIn) must let every traced segment through, and some pyramids the box
+    // and sphere keep must be dropped by the parts.
+    const Scene scene = parseScene(R"({
+      "lights": [{"corner": [-0.3, -0.3, 3], "edge_u": [0.6, 0, 0], "edge_v": [0, 0.6, 0]}],
+      "obstacles": [
+        {"type": "torus", "center": [0, 0, 1.2], "major_radius": 0.5, "minor_radius": 0.08,
+         "axis": [1, 0.3, 1]},
+        {"type": "capsule", "a": [0.9, -0.9, 0.8], "b": [1.8, 0.2, 1.6], "radius": 0.07}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
+      "level_set": {"voxel_size": 0.02, "half_width": 3}})",
+                                   "parts.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    REQUIRE(occ.size() == 2);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> t(0.0, 1.0);
+    for (size_t i = 0; i < occ.size(); ++i) {
+        const LevelSetPtr& ls = std::get<LevelSetPtr>(occ.shape(i));
+        const std::vector<Box3>& parts = occ.solidParts(i);
+        const Box3& box = occ.solidBounds(i);
+        REQUIRE(!parts.empty());
+        auto volume = [](const Box3& b) {
+            const Vec3 d = b.hi - b.lo;
+            return d.x * d.y * d.z;
+        };
+        double partsVolume = 0.0;
+        for (const Box3& b : parts) partsVolume += volume(b);
+        INFO("obstacle " << i << ": " << parts.size() << " parts, " << partsVolume / volume(box)
+                         << " of the box");
+        CHECK(partsVolume < 0.5 * volume(box));
+        int inside = 0;
+        for (int k = 0; k < 40000; ++k) {
+            const Vec3 p = box.lo + Vec3(t(rng), t(rng), t(rng)) * (box.hi - box.lo);
+            if (!(sampleLevelSet(*ls, p) <= 0.0)) continue;
+            ++inside;
+            const bool held = std::any_of(parts.begin(), parts.end(), [&](const Box3& b) {
+                return p.x >= b.lo.x && p.y >= b.lo.y && p.z >= b.lo.z && p.x <= b.hi.x &&
+                       p.y <= b.hi.y && p.z <= b.hi.z;
+            });
+            REQUIRE(held);
+        }
+        CHECK(inside > 200);
+    }
+    // Pyramids from points on the ground and below the obstacles to small quads above them.
+    Occluder::Query q = occ.makeQuery();
+    int droppedByParts = 0, traced = 0;
+    std::uniform_real_distribution<double> u(-1.0, 2.0);
+    for (int trial = 0; trial < 400; ++trial) {
+        const Vec3 apex(u(rng), u(rng), 0.3 * t(rng));
+        const Vec3 corner(u(rng), u(rng), 2.2 + t(rng));
+        const Vec3 e1(0.1 + 0.3 * t(rng), 0.0, 0.0), e2(0.0, 0.1 + 0.3 * t(rng), 0.0);
+        const std::vector<Vec3> quad = {corner, corner + e1, corner + e1 + e2, corner + e2};
+        const Pyramid pyramid(apex, 0.0, quad);
+        for (size_t i = 0; i < occ.size(); ++i) {
+            if (occ.mayBlockIn(i, pyramid)) continue;
+            if (pyramid.mayMeet(occ.solidBounds(i)) &&
+                pyramid.mayMeet(occ.solidCentre(i), occ.solidRadius(i)))
+                ++droppedByParts;
+        }
+        if (occ.mayBlockIn(0, pyramid) || occ.mayBlockIn(1, pyramid)) continue;
+        for (int s = 0; s < 100; ++s) {
+            ++traced;
+            REQUIRE_FALSE(q.occluded(apex, corner + t(rng) * e1 + t(rng) * e2));
+        }
+    }
+    CHECK(droppedByParts > 20);
+    CHECK(traced > 5000);
 }
 
 TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon crosses",

@@ -123,12 +123,15 @@ public:
     const Box3& bounds(size_t i) const { return mBounds[i]; }
     /// Whether obstacle i may block a segment inside `pyramid`: a box and a sphere around what
     /// can block (level sets: the inside of the band, not its outside; solidBounds()) must
-    /// both meet it.
+    /// both meet it, and for a level set one of its solid parts (solidParts()).
     bool mayBlockIn(size_t i, const Pyramid& pyramid) const;
     /// A box around what of obstacle i can block a ray (within bounds(i); level sets: the
     /// inside of the band, grown by 1.25 voxels).
     const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
     /// A sphere around the same (centre and radius; radius 0 with an empty solidBounds(i)).
+    /// A level set's solid parts (LevelSet::solidPartsWS: boxes holding every point where it
+    /// can block a ray; mayBlockIn asks one of them to meet the pyramid); empty otherwise.
+    const std::vector<Box3>& solidParts(size_t i) const { return mSolid[i].parts; }
     const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
     double solidRadius(size_t i) const { return mSolid[i].radius; }
     /// A ball that blocks every segment meeting it (one that starts outside it).
@@ -172,6 +175,7 @@ private:
         Box3 box;
         Vec3 centre{0.0};
         double radius = 0.0;
+        std::vector<Box3> parts;  // a level set's solid parts (LevelSet::solidPartsWS); may be empty
     };
     std::vector<Solid> mSolid;  // index-aligned with mShapes
     std::vector<std::vector<KernelBall>> mSphereKernels;  // index-aligned: kernelBalls(i)
