@@ -12,7 +12,7 @@
 //   bench_bounds [--seeds N] [--first-seed S] [--size 200] [--stride 4] [--samples 4096]
 //                [--confirm 1048576] [--threads 2] [--steps 5] [--out DIR]
 //
-// --steps: ACI's dichotomy steps n (5, probe's default; renders take 4 in tangent mode).
+// --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
 #include <algorithm>

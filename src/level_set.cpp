@@ -221,6 +221,19 @@ std::unique_ptr<CellTables> buildCellTables(const openvdb::FloatGrid& fine) {
     return tables;
 }
 
+/// The world box around index-space box [lo, hi] (all eight corners: a linear transform may
+/// rotate it).
+Box3 worldBoxOf(const openvdb::FloatGrid& grid, const openvdb::Vec3d& lo, const openvdb::Vec3d& hi) {
+    Box3 out;
+    for (int c = 0; c < 8; ++c) {
+        const openvdb::Vec3d cornerIS((c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(),
+                                      (c & 4) ? hi.z() : lo.z());
+        const openvdb::Vec3d p = grid.indexToWorld(cornerIS);
+        out.extend(Vec3(p.x(), p.y(), p.z()));
+    }
+    return out;
+}
+
 }  // namespace
 
 const CellTables* LevelSet::cellTables() const {
@@ -240,13 +253,7 @@ LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
     // Voxel centres sit at integer index coordinates, so a voxel's cell spans +-0.5 around it.
     const openvdb::Vec3d lo = active.min().asVec3d() - openvdb::Vec3d(0.5);
     const openvdb::Vec3d hi = active.max().asVec3d() + openvdb::Vec3d(0.5);
-    // All eight corners: a linear transform may rotate the index box.
-    for (int c = 0; c < 8; ++c) {
-        const openvdb::Vec3d cornerIS((c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(),
-                                      (c & 4) ? hi.z() : lo.z());
-        const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
-        mBoundsWS.extend(Vec3(p.x(), p.y(), p.z()));
-    }
+    mBoundsWS = worldBoxOf(*mGrid, lo, hi);
     findSolid();
 }
 
@@ -275,12 +282,7 @@ void LevelSet::findSolid() {
     }
     lo -= openvdb::Vec3d(grow);
     hi += openvdb::Vec3d(grow);
-    for (int c = 0; c < 8; ++c) {
-        const openvdb::Vec3d cornerIS((c & 1) ? hi.x() : lo.x(), (c & 2) ? hi.y() : lo.y(),
-                                      (c & 4) ? hi.z() : lo.z());
-        const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
-        mSolidWS.extend(Vec3(p.x(), p.y(), p.z()));
-    }
+    mSolidWS = worldBoxOf(*mGrid, lo, hi);
     const openvdb::Vec3d centre = 0.5 * (lo + hi);
     double far2 = 0.0;
     for (auto it = mGrid->cbeginValueOn(); it; ++it) {
@@ -337,16 +339,7 @@ void LevelSet::findSolid() {
                 }
     }
     for (int k = 0; k < G * G * G; ++k) {
-        if (!(partLo[k].x() <= partHi[k].x())) continue;
-        Box3 part;
-        for (int c = 0; c < 8; ++c) {
-            const openvdb::Vec3d cornerIS((c & 1) ? partHi[k].x() : partLo[k].x(),
-                                          (c & 2) ? partHi[k].y() : partLo[k].y(),
-                                          (c & 4) ? partHi[k].z() : partLo[k].z());
-            const openvdb::Vec3d p = mGrid->indexToWorld(cornerIS);
-            part.extend(Vec3(p.x(), p.y(), p.z()));
-        }
-        mSolidParts.push_back(part);
+        if (partLo[k].x() <= partHi[k].x()) mSolidParts.push_back(worldBoxOf(*mGrid, partLo[k], partHi[k]));
     }
 }
 

@@ -129,11 +129,11 @@ public:
     /// inside of the band, grown by 1.25 voxels).
     const Box3& solidBounds(size_t i) const { return mSolid[i].box; }
     /// A sphere around the same (centre and radius; radius 0 with an empty solidBounds(i)).
+    const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
+    double solidRadius(size_t i) const { return mSolid[i].radius; }
     /// A level set's solid parts (LevelSet::solidPartsWS: boxes holding every point where it
     /// can block a ray; mayBlockIn asks one of them to meet the pyramid); empty otherwise.
     const std::vector<Box3>& solidParts(size_t i) const { return mSolid[i].parts; }
-    const Vec3& solidCentre(size_t i) const { return mSolid[i].centre; }
-    double solidRadius(size_t i) const { return mSolid[i].radius; }
     /// A ball that blocks every segment meeting it (one that starts outside it).
     static constexpr int kKernelBalls = 8;
     struct KernelBall {
