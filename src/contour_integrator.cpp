@@ -76,7 +76,8 @@ FirstLevelGrid firstLevelGrid(const RectLight& light, const AciSettings& setting
 }
 
 ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l,
-                                    Occluder::Query& q, FirstLevelGrid grid, int steps)
+                                    Occluder::Query& q, FirstLevelGrid grid, int steps,
+                                    bool footprintsBuilt)
     : self(s), scratch(*s.mScratch), rec(r), light(l), query(q), pa(grid.a), pb(grid.b),
       n(steps), Na(grid.a << (steps + 1)), Nb(grid.b << (steps + 1)) {
     origin = r.point + s.mSettings.rayOffset * r.normal;
@@ -104,7 +105,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     perUnitA = Na * glm::length(l.edgeV) / cross;
     perUnitB = Nb * glm::length(l.edgeU) / cross;
     if (s.mSettings.coverage) {
-        findFootprints();
+        if (!footprintsBuilt) findFootprints();
         const size_t buckets = static_cast<size_t>(pa) * pb;
         for (auto* v : {&scratch.mDiscBuckets, &scratch.mSegBuckets, &scratch.mLeafBuckets}) {
             if (v->size() < buckets) v->resize(buckets);
@@ -344,7 +345,19 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     const FirstLevelGrid grid = firstLevelGrid(light, mSettings);
     int n = std::max(0, mSettings.steps);
     while (n > 0 && (std::max(grid.a, grid.b) << (n + 1)) > kMaxLatticeUnits) --n;
-    Lattice lat(*this, r, light, query, grid, n);
+    bool footprintsBuilt = false;
+    int coarser = 0;
+    if (mSettings.adaptiveSteps && mSettings.coverage && mSettings.tangentContour && n >= 2) {
+        // One step fewer where every obstacle's footprint on the light is wide.
+        sc.mFootprints.build(query.occluder(), query.restriction(),
+                             r.point + mSettings.rayOffset * r.normal, light);
+        footprintsBuilt = true;
+        const double unit = 0.5 * (glm::length(light.edgeU) / (grid.a << (n + 1)) +
+                                   glm::length(light.edgeV) / (grid.b << (n + 1)));
+        if (sc.mFootprints.narrowestWidth() >= kAdaptiveWidth * unit) coarser = 1;
+        n -= coarser;
+    }
+    Lattice lat(*this, r, light, query, grid, n, footprintsBuilt);
     if (mSettings.coverage && lat.wholeLight()) {
         // One ray whose disc covers the light decides it: all visible or all hidden.
         const bool vis = sc.mSample[lat.index({lat.Na / 2, lat.Nb / 2})] == kVisible;
@@ -354,6 +367,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         est.formFactor = glm::dot(est.g, r.normal);
         for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
         est.counts = lat.counts;  // (its bound, 0 when asked for, was set above)
+        est.counts.coarserEvaluations = coarser;
         est.blockers = distinct(sc.mBlockers);
         return est;
     }
@@ -446,6 +460,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     for (int k = 0; k < 3; ++k) est.gradient[k] = glm::dot(est.dg[k], r.normal);
     if (mSettings.coverage && mSettings.errorBound) est.errorBound = lat.bound;
     est.counts = lat.counts;
+    est.counts.coarserEvaluations = coarser;
     est.blockers = distinct(sc.mBlockers);
     return est;
 }

@@ -89,6 +89,9 @@ constexpr int kHorizonContour = -2;     // Vertex::obstacle of a vertex on the h
 // With coverage: an evaluation whose coverage rays ran out with more than this share of the
 // light's area unproven restarts once one level deeper (contour_integrator.cpp).
 constexpr double kEscalateUnproven = 0.8;
+// AciSettings::adaptiveSteps: one dichotomy step fewer where every footprint on the light is at
+// least this many units of the finer lattice wide.
+constexpr double kAdaptiveWidth = 16.0;
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
 // Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
 // within half an interval of its every point and the stopping rule on centres (every uncovered
@@ -232,8 +235,9 @@ struct ContourIntegrator::Lattice {
     Mat3 dg{0.0};
 
     // ----- Samples: one ray per lattice point and evaluation (contour_integrator.cpp) -----
+    // footprintsBuilt: scratch.mFootprints already holds this origin's footprints.
     Lattice(ContourIntegrator& s, const Receiver& r, const RectLight& l, Occluder::Query& q,
-            FirstLevelGrid grid, int steps);
+            FirstLevelGrid grid, int steps, bool footprintsBuilt = false);
     float& sample(LatticePoint q, bool firstLevel);
     size_t settle(LatticePoint q) const;
     // Hidden sample q's hit fraction (where its segment first meets a surface), its ray traced

@@ -125,11 +125,51 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         f.spread = r < dist ? std::asin(r / dist) : kPi;
         f.cosSpread = std::cos(f.spread);
         f.sinSpread = std::sin(f.spread);
+        // A level set's thickness: the widest footprint of its kernel balls (none: unknown,
+        // 0). An analytic shape is convex, its footprint its own measure.
+        f.thickness = occ.voxelSize(i) == 0.0 ? std::numeric_limits<double>::infinity() : 0.0;
+        for (const Occluder::KernelBall& b : occ.kernelBalls(i))
+            f.thickness = std::max(f.thickness, ballWidth(b.centre, b.radius));
         mFootprints.push_back(f);
     }
     if (!bounded) mFootprints.clear();
     mBounded = bounded;
     return bounded;
+}
+
+double LightFootprints::chordAcross(const Vec3& axis, double spread) const {
+    // The cone meets the plane in an ellipse at least as wide as its chord through the axis's
+    // point, across the axis: 2 h tan(spread) / cos(axis, normal).
+    const double cosAxis = std::abs(glm::dot(axis, mLight->normal()));
+    if (!(spread < 0.5 * kPi) || !(cosAxis > 0.0)) return std::numeric_limits<double>::infinity();
+    return 2.0 * std::abs(mToLight) * std::tan(spread) / cosAxis;
+}
+
+double LightFootprints::ballWidth(const Vec3& centre, double radius) const {
+    const Vec3 d = centre - mOrigin;
+    const double dist = glm::length(d);
+    if (!(radius < dist)) return std::numeric_limits<double>::infinity();
+    return chordAcross(d / dist, std::asin(radius / dist));
+}
+
+double LightFootprints::narrowestWidth() const {
+    if (!mBounded) return 0.0;
+    double narrowest = std::numeric_limits<double>::infinity();
+    for (const Footprint& f : mFootprints) {
+        if (f.u1 < 0.0 || f.u0 > 1.0 || f.v1 < 0.0 || f.v0 > 1.0) continue;
+        // A convex polygon's width: the smallest, over its edges, of its reach from that edge.
+        double width = std::numeric_limits<double>::infinity();
+        for (int e = 0; e < f.n; ++e) {
+            if (f.nx[e] == 0.0 && f.ny[e] == 0.0) continue;
+            double reach = 0.0;
+            for (int k = 0; k < f.n; ++k)
+                reach = std::max(reach, (f.x[e] - f.x[k]) * f.nx[e] + (f.y[e] - f.y[k]) * f.ny[e]);
+            width = std::min(width, reach);
+        }
+        width = std::min(width, chordAcross(f.axis, f.spread));
+        narrowest = std::min({narrowest, width, f.thickness});
+    }
+    return narrowest;
 }
 
 void LightFootprints::normals(const double u[8], const double v[8], int n, double nu[8],

@@ -36,6 +36,14 @@ public:
     /// (u, v) to every footprint: every light point nearer than that is visible too. 0 when the
     /// point lies in some footprint, or none is bounded.
     double distance(double u, double v) const { return distance(pointAt(u, v)); }
+    /// The narrowest footprint on the light: over the obstacles whose footprint's bounding box
+    /// meets the light's rectangle, the smallest width of their footprint in the light's plane
+    /// (world units): the box's projected hull's width, or the chord of the solid sphere's cone
+    /// across its axis where that is smaller; for a level set, not more than its kernel balls'
+    /// widest footprint (0 with none: a level set may be thin anywhere). An estimate of how small a shadow on the light can
+    /// be, for choosing a lattice (AciSettings::adaptiveSteps), not a bound. Infinite when no
+    /// footprint meets the light, 0 when they are not bounded.
+    double narrowestWidth() const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
     /// (d; its length and direction).
@@ -78,6 +86,7 @@ private:
         Vec3 axis;              // unit direction from the origin to the sphere's centre
         double spread;          // the sphere's angular radius from the origin (pi: all)
         double cosSpread, sinSpread;
+        double thickness;       // narrowestWidth(): a level set's kernel balls' widest footprint
         // The hull in an orthonormal frame of the light's plane (mPlaneX, mPlaneY from
         // mLight->corner), with its edges' unit outward normals there.
         double x[8], y[8], nx[8], ny[8];
@@ -98,6 +107,10 @@ private:
         double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
+    // The width on the light's plane of a cone from the origin (its unit axis and half-angle),
+    // or of a ball's (infinite when the origin is inside it), as narrowestWidth() measures it.
+    double chordAcross(const Vec3& axis, double spread) const;
+    double ballWidth(const Vec3& centre, double radius) const;
     // A lower bound on the distance in the light's plane from the point to footprint f; 0
     // inside it.
     static double distanceTo(const Footprint& f, const LightPoint& lp);

@@ -778,6 +778,7 @@ private:
         s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
         AciSettings a = mSettings.aci;
+        a.adaptiveSteps = mSettings.adaptiveSteps;
         a.rayOffset = s.rayOffset;
         a.reuseCorners = false;
         mTs.integrator.setSettings(a);
@@ -792,6 +793,7 @@ private:
         mTs.stats.footprintSamples += e.counts.footprintSamples;
         mTs.stats.footprintClearances += e.counts.footprintClearances;
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
+        mTs.stats.coarserEvaluations += e.counts.coarserEvaluations;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
         return Sample{e.g, e.gradient, e.errorBound, {}, 0, std::move(e.blockers)};
@@ -799,6 +801,7 @@ private:
 
     Estimate evaluate(int x, bool adapt) {
         AciSettings s = mSettings.aci;
+        s.adaptiveSteps = mSettings.adaptiveSteps;
         s.grid = mGrid;
         s.reuseCorners = mReuse;
         s.rayOffset = rayOffset(x);
@@ -809,6 +812,7 @@ private:
         mTs.sums[size_t(x)].shadowed = true;
         RenderStats& st = mTs.stats;
         ++st.aciEvaluations;
+        st.coarserEvaluations += e.counts.coarserEvaluations;
         st.firstLevelRays += e.counts.firstLevelRays;
         st.secondLevelRays += e.counts.secondLevelRays;
         st.coverageRays += e.counts.coverageRays;

@@ -31,6 +31,7 @@ void RenderStats::merge(const RenderStats& o) {
     culledSpans += o.culledSpans;
     closedFormPixels += o.closedFormPixels;
     aciEvaluations += o.aciEvaluations;
+    coarserEvaluations += o.coarserEvaluations;
     patternEvaluations += o.patternEvaluations;
     interpolatedPixels += o.interpolatedPixels;
     restarts += o.restarts;
@@ -70,6 +71,7 @@ std::string RenderStats::toJson() const {
     j["culled_spans"] = culledSpans;
     j["closed_form_pixels"] = closedFormPixels;
     j["aci_evaluations"] = aciEvaluations;
+    j["coarser_evaluations"] = coarserEvaluations;
     j["pattern_evaluations"] = patternEvaluations;
     j["interpolated_pixels"] = interpolatedPixels;
     j["restarts"] = restarts;

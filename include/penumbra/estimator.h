@@ -58,6 +58,9 @@ struct AciCounts {
     uint64_t squaresRefined = 0;
     uint64_t squaresSplitForCoverage = 0;  ///< splits because discs did not cover a square
     uint64_t restarts = 0;
+    /// Evaluations that took one dichotomy step fewer (AciSettings::adaptiveSteps): 0 or 1 per
+    /// evaluation.
+    uint64_t coarserEvaluations = 0;
     int maxDepth = 0;              ///< deepest quadtree refinement reached
 
     uint64_t shadowRays() const { return firstLevelRays + secondLevelRays; }
@@ -72,6 +75,7 @@ struct AciCounts {
         squaresRefined += o.squaresRefined;
         squaresSplitForCoverage += o.squaresSplitForCoverage;
         restarts += o.restarts;
+        coarserEvaluations += o.coarserEvaluations;
         maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
     }
 };

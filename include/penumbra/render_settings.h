@@ -3,8 +3,8 @@
 /// the Monte Carlo baselines' (McSettings) and the renderer's (RenderSettings), each with one
 /// range, and one set of names for them, the JSON model's (docs/render-settings.md):
 ///
-///   method, width, height, threads, aci_grid, aci_steps, aci_mode, max_span, samples,
-///   mc_threshold, mc_max_depth, mc_initial_depth, seed, volume_cache, volume_samples,
+///   method, width, height, threads, aci_grid, aci_steps, aci_mode, aci_fixed_steps, max_span,
+///   samples, mc_threshold, mc_max_depth, mc_initial_depth, seed, volume_cache, volume_samples,
 ///   hide_volumes
 ///
 /// Batch manifests use these keys; the command line's flags are the same names with dashes
@@ -79,6 +79,12 @@ struct AciSettings {
     /// (firstLevelGrid in contour_integrator.h), so that contour vertices are located as finely
     /// along both edges. Off: `grid` x `grid` squares, as in the paper, whatever the shape.
     bool aspectGrid = true;
+    /// Beyond the paper (tangent mode with coverage, for renderers): an evaluation whose
+    /// obstacles' footprints on the light (light_footprint.h) are all wide, at least 16 units of
+    /// the lattice `steps` gives, takes one dichotomy step fewer (a lattice half as fine, so
+    /// epsilon, the coverage gap and the bound's strips double). Narrow footprints, small
+    /// obstacles or thin ones seen edge-on, keep `steps`.
+    bool adaptiveSteps = false;
     /// Beyond the paper (tangent mode): certified coverage. Every shadow ray also returns a
     /// Certificate (occluder.h): a disc on the light within which every point has its answer.
     /// Rays go where no disc proves the light and no located contour piece is near, and a
@@ -168,6 +174,10 @@ struct RenderSettings {
     /// tracing while the pixel's point has moved less than the ray's distance bound
     /// (AciSettings::reuseCorners), within each span.
     bool reuseFirstLevel = true;
+    /// Beyond the paper, tangent mode (AciSettings::adaptiveSteps): an evaluation whose
+    /// obstacles' footprints on the light are all wide takes one dichotomy step fewer than
+    /// aci.steps. JSON `aci_fixed_steps` (true turns it off), `--aci-fixed-steps`.
+    bool adaptiveSteps = true;
     int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
     /// Monte Carlo settings (samples, mc-adaptive's threshold, seed). `samples` 0 (the default
     /// here) takes defaultSamples(method); rayOffset is taken from `aci.rayOffset`, and each

@@ -54,6 +54,8 @@ struct RenderStats {
     uint64_t culledSpans = 0;                ///< span-light pairs with no candidate obstacle
     uint64_t closedFormPixels = 0;           ///< pixel-light pairs shaded by the closed form
     uint64_t aciEvaluations = 0;             ///< full contour integrations
+    /// Of those, the ones on a lattice one dichotomy step coarser (RenderSettings::adaptiveSteps)
+    uint64_t coarserEvaluations = 0;
     uint64_t patternEvaluations = 0;         ///< pixel-light pairs where only the pattern was traced
     uint64_t interpolatedPixels = 0;         ///< pixel-light pairs whose value was interpolated
     uint64_t restarts = 0;                   ///< ACI restarts one level deeper (section 3.2)

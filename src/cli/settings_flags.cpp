@@ -36,6 +36,10 @@ const std::map<std::string, FlagInfo>& flagTable() {
          {Kind::Text, true,
           "ACI variant: paper (Vedel 1993 exactly), arcs (parabolic arcs and the midline check), "
           "tangent (distance-guided Newton dichotomy and tangent arcs; see docs/estimator.md)"}},
+        {"aci_fixed_steps",
+         {Kind::Flag, false,
+          "Tangent mode: every evaluation takes --aci-steps (by default one whose obstacles' "
+          "footprints on the light are all wide takes one step fewer; docs/estimator.md)"}},
         {"max_span", {Kind::Int, true, "Longest span of pixels shaded together"}},
         {"samples",
          {Kind::Int, false,

@@ -52,9 +52,9 @@ const std::vector<std::string> kProbeKeys = {"aci_grid",         "aci_steps",   
                                              "samples",          "mc_threshold", "mc_max_depth",
                                              "mc_initial_depth", "seed",         "threads"};
 const std::vector<std::string> kRenderKeys = {
-    "aci_grid",     "aci_steps",      "aci_mode",         "max_span", "samples",
-    "mc_threshold", "mc_max_depth",   "mc_initial_depth", "seed",     "threads",
-    "volume_cache", "volume_samples", "hide_volumes"};
+    "aci_grid",     "aci_steps",      "aci_mode",         "aci_fixed_steps", "max_span",
+    "samples",      "mc_threshold",   "mc_max_depth",     "mc_initial_depth", "seed",
+    "threads",      "volume_cache",   "volume_samples",   "hide_volumes"};
 
 std::string joined(const std::vector<std::string>& names) {
     std::string s;
@@ -76,7 +76,7 @@ py::int_ asInteger(py::handle v, const std::string& key) {
 
 // A keyword's value as JSON, its Python type checked.
 nlohmann::json jsonValue(py::handle v, const std::string& key) {
-    if (key == "hide_volumes") {
+    if (key == "hide_volumes" || key == "aci_fixed_steps") {
         if (!PyBool_Check(v.ptr())) throw py::type_error(key + ": must be a bool, got " + typeName(v));
         return v.ptr() == Py_True;
     }
@@ -683,9 +683,9 @@ PYBIND11_MODULE(penumbra, m) {
              "width, height: image size (default: the camera's).\n"
              "method: 'aci', 'aci-pixel', 'reference', 'mc-adaptive', 'mc-solid-angle', "
              "'mc-ratio'.\n"
-             "settings: aci_grid, aci_steps, aci_mode, max_span, samples, mc_threshold, "
-             "mc_max_depth, mc_initial_depth, seed, threads, volume_cache, volume_samples, "
-             "hide_volumes.\n\n"
+             "settings: aci_grid, aci_steps, aci_mode, aci_fixed_steps, max_span, samples, "
+             "mc_threshold, mc_max_depth, mc_initial_depth, seed, threads, volume_cache, "
+             "volume_samples, hide_volumes.\n\n"
              "Returns (image, stats): image a float32 array (H, W, 3) of linear radiance, "
              "(H, W, 4) with an alpha channel when the camera sees volumes; stats the dict "
              "`render --stats` writes. Runs in parallel with the GIL released.")

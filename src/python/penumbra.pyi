@@ -95,6 +95,7 @@ class Scene:
         aci_grid: Optional[int] = None,
         aci_steps: Optional[int] = None,
         aci_mode: Optional[str] = None,
+        aci_fixed_steps: Optional[bool] = None,
         max_span: Optional[int] = None,
         samples: Optional[int] = None,
         mc_threshold: Optional[float] = None,
