@@ -354,7 +354,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         footprintsBuilt = true;
         const double unit = 0.5 * (glm::length(light.edgeU) / (grid.a << (n + 1)) +
                                    glm::length(light.edgeV) / (grid.b << (n + 1)));
-        if (sc.mFootprints.narrowestWidth() >= kAdaptiveWidth * unit) coarser = 1;
+        if (sc.mFootprints.narrowestWidth(query.occluder()) >= kAdaptiveWidth * unit) coarser = 1;
         n -= coarser;
     }
     Lattice lat(*this, r, light, query, grid, n, footprintsBuilt);

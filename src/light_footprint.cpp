@@ -125,11 +125,6 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         f.spread = r < dist ? std::asin(r / dist) : kPi;
         f.cosSpread = std::cos(f.spread);
         f.sinSpread = std::sin(f.spread);
-        // A level set's thickness: the widest footprint of its kernel balls (none: unknown,
-        // 0). An analytic shape is convex, its footprint its own measure.
-        f.thickness = occ.voxelSize(i) == 0.0 ? std::numeric_limits<double>::infinity() : 0.0;
-        for (const Occluder::KernelBall& b : occ.kernelBalls(i))
-            f.thickness = std::max(f.thickness, ballWidth(b.centre, b.radius));
         mFootprints.push_back(f);
     }
     if (!bounded) mFootprints.clear();
@@ -152,7 +147,7 @@ double LightFootprints::ballWidth(const Vec3& centre, double radius) const {
     return chordAcross(d / dist, std::asin(radius / dist));
 }
 
-double LightFootprints::narrowestWidth() const {
+double LightFootprints::narrowestWidth(const Occluder& occ) const {
     if (!mBounded) return 0.0;
     double narrowest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
@@ -167,7 +162,15 @@ double LightFootprints::narrowestWidth() const {
             width = std::min(width, reach);
         }
         width = std::min(width, chordAcross(f.axis, f.spread));
-        narrowest = std::min({narrowest, width, f.thickness});
+        // A level set may be thin where its box is wide: no wider than its kernel balls' widest
+        // footprint (none: 0). An analytic shape is convex, its footprint its own measure.
+        if (occ.voxelSize(size_t(f.obstacle)) > 0.0) {
+            double thickness = 0.0;
+            for (const Occluder::KernelBall& b : occ.kernelBalls(size_t(f.obstacle)))
+                thickness = std::max(thickness, ballWidth(b.centre, b.radius));
+            width = std::min(width, thickness);
+        }
+        narrowest = std::min(narrowest, width);
     }
     return narrowest;
 }

@@ -40,10 +40,11 @@ public:
     /// meets the light's rectangle, the smallest width of their footprint in the light's plane
     /// (world units): the box's projected hull's width, or the chord of the solid sphere's cone
     /// across its axis where that is smaller; for a level set, not more than its kernel balls'
-    /// widest footprint (0 with none: a level set may be thin anywhere). An estimate of how small a shadow on the light can
-    /// be, for choosing a lattice (AciSettings::adaptiveSteps), not a bound. Infinite when no
-    /// footprint meets the light, 0 when they are not bounded.
-    double narrowestWidth() const;
+    /// widest footprint (0 with none: a level set may be thin anywhere). `occ` is the occluder
+    /// build() was given. An estimate of how small a shadow on the light can be, for choosing a
+    /// lattice (AciSettings::adaptiveSteps), not a bound. Infinite when no footprint meets the
+    /// light, 0 when they are not bounded.
+    double narrowestWidth(const Occluder& occ) const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
     /// (d; its length and direction).
@@ -86,7 +87,6 @@ private:
         Vec3 axis;              // unit direction from the origin to the sphere's centre
         double spread;          // the sphere's angular radius from the origin (pi: all)
         double cosSpread, sinSpread;
-        double thickness;       // narrowestWidth(): a level set's kernel balls' widest footprint
         // The hull in an orthonormal frame of the light's plane (mPlaneX, mPlaneY from
         // mLight->corner), with its edges' unit outward normals there.
         double x[8], y[8], nx[8], ny[8];
