@@ -126,7 +126,7 @@ struct Checker {
 const std::vector<std::string>& RenderSettings::keys() {
     static const std::vector<std::string> k = {
         "method",       "width",        "height",       "threads",          "aci_grid",
-        "aci_steps",    "aci_mode",     "aci_fixed_steps", "max_span",  "samples",          "mc_threshold",
+        "aci_steps",    "aci_mode",     "aci_fixed_steps", "aci_no_row_pairs", "max_span",  "samples",          "mc_threshold",
         "mc_max_depth", "mc_initial_depth", "seed",     "volume_cache",     "volume_samples",
         "hide_volumes"};
     return k;
@@ -167,6 +167,8 @@ void RenderSettings::readJson(const nlohmann::json& object, const std::string& f
             applyAciMode(aci, c.named([&] { return parseAciMode(c.text(v, key), fieldAt(where, key)); }));
         } else if (key == "aci_fixed_steps") {
             adaptiveSteps = !c.flag(v, key);
+        } else if (key == "aci_no_row_pairs") {
+            rowPairs = !c.flag(v, key);
         } else if (key == "max_span") {
             maxSpan = c.integer(v, key, kMaxSpanRange);
         } else if (key == "samples") {
@@ -201,6 +203,7 @@ nlohmann::ordered_json RenderSettings::toJson() const {
     j["aci_steps"] = aci.steps;
     j["aci_mode"] = aciModeName(aciModeOf(aci));
     j["aci_fixed_steps"] = !adaptiveSteps;
+    j["aci_no_row_pairs"] = !rowPairs;
     j["max_span"] = maxSpan;
     if (isMonteCarlo(method)) {
         j["samples"] = mc.samples > 0 ? mc.samples : defaultSamples(method);

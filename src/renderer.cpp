@@ -3,6 +3,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
+#include <iterator>
 #include <optional>
 #include <atomic>
 #include <cstdio>
@@ -341,10 +343,44 @@ struct ThreadState {
     std::vector<uint8_t> lit;
     std::vector<uint8_t> opaqueFree;  // per pixel of the span: no opaque candidate in its shaft
     std::vector<uint32_t> involved;   // SpanShader::obstaclesNear's answer
+    std::vector<uint8_t> paired;      // SpanShader::shadeRowPairRun: pixels the rows may pair
+    std::vector<uint32_t> rowCandidates, rowBlockers;  // and its comparisons
     // Per pixel x of the span: the candidates that may shadow it, pixelObstacles[
     // pixelObstacleStart[x - x0] .. pixelObstacleStart[x - x0 + 1]) (in candidate order).
     std::vector<uint32_t> pixelObstacles;
     std::vector<uint32_t> pixelObstacleStart;
+};
+
+// What an even row leaves of a pixel, for one light, to the odd rows above and below it
+// (RenderSettings::rowPairs): its shadow (the unoccluded G minus G, and the same of the
+// gradient), its bound and the obstacles that blocked its rays. `known` only where the pixel
+// was evaluated by certified ACI or interpolated after a passed check, with at most
+// kRowBlockers blockers.
+constexpr int kRowBlockers = 6;
+struct PixelShadow {
+    Vec3 shadow{0.0};
+    Vec3 shadowGradient{0.0};
+    double bound = 0.0;
+    int object = -1;  // the viewing ray's hit (Hit::object)
+    uint8_t blockerCount = 0;
+    bool known = false;
+    std::array<uint32_t, kRowBlockers> blockers{};
+
+    bool sameBlockers(const PixelShadow& o) const {
+        return blockerCount == o.blockerCount &&
+               std::equal(blockers.begin(), blockers.begin() + blockerCount, o.blockers.begin());
+    }
+    bool sameBlockers(const std::vector<uint32_t>& v) const {
+        return v.size() == blockerCount && std::equal(v.begin(), v.end(), blockers.begin());
+    }
+};
+
+// A row's links to other rows' records, each `lights x width` (light-major), or null: `out`
+// where a row that others read writes its own; where a row y is paired at distance s, the
+// records of rows y - 3s, y - s, y + s and y + 3s (rows[0..3]).
+struct RowLink {
+    PixelShadow* out = nullptr;
+    std::array<const PixelShadow*, 4> rows{};
 };
 
 Rgb planeAlbedo(const PlaneReceiver& plane, const Vec3& p) {
@@ -433,9 +469,14 @@ class SpanShader {
 
 public:
     SpanShader(const Context& ctx, ThreadState& ts, const RectLight& light, size_t lightIndex,
-               int row)
+               int row, const RowLink& link = RowLink{})
         : mCtx(ctx), mTs(ts), mLight(light), mSettings(ctx.settings), mLightIndex(lightIndex),
-          mRow(row) {}
+          mRow(row) {
+        const size_t offset = lightIndex * size_t(ctx.camera.width());
+        if (link.out) mOut = link.out + offset;
+        if (link.rows[0] && link.rows[1] && link.rows[2] && link.rows[3])
+            for (size_t k = 0; k < 4; ++k) mRows[k] = link.rows[k] + offset;
+    }
 
     // Shades pixels [x0, x1] of the current row (all on one object) for mLight.
     void shadeSpan(int x0, int x1) {
@@ -595,7 +636,11 @@ public:
             // block rays allow it (shadeCheckedRun); the paper's and arcs modes keep the
             // shadow patterns of Vedel's section 5.
             if (mSettings.aci.coverage && mSettings.coherence) {
-                shadeCheckedRun(x, end, /*media=*/false);
+                if (mRows[0]) {
+                    shadeRowPairRun(x, end);
+                } else {
+                    shadeCheckedRun(x, end, /*media=*/false);
+                }
             } else {
                 shadeRun(x, end);
             }
@@ -670,7 +715,150 @@ private:
         const GWithDerivative open = unoccludedG(mLight, r);
         s.openG = open.g;
         s.openGradient = gradientOf(open.dg, r.normal);
+        if (!mCheckMedia)
+            record(x, s.openG - s.g, s.openGradient - s.gradient, s.errorBound, s.blockers);
         return s;
+    }
+
+    // Keeps pixel x's shadow for the odd rows next to this one (rowPairs), when asked.
+    void record(int x, const Vec3& shadow, const Vec3& shadowGradient, double bound,
+                const std::vector<uint32_t>& blockers) {
+        if (!mOut) return;
+        PixelShadow& p = mOut[size_t(x)];
+        p = PixelShadow{};
+        if (blockers.size() > size_t(kRowBlockers)) return;
+        p.shadow = shadow;
+        p.shadowGradient = shadowGradient;
+        p.bound = bound;
+        p.object = mTs.hits[size_t(x)].object;
+        p.blockerCount = uint8_t(blockers.size());
+        std::copy(blockers.begin(), blockers.end(), p.blockers.begin());
+        p.known = true;
+    }
+
+    // A paired row's run of pixels [x0, x1] (rowPairs; rows y -+ s and y -+ 3s are done). A
+    // pixel pairs when those four rows' records are known there, lie on its object and saw the
+    // same blockers, its own candidates are exactly those blockers (the obstacle it lies on
+    // aside, as in refineCheckedRun: a candidate that blocks no neighbour could still shadow
+    // this row alone), and the shadow is smooth across the rows: the cubic through the four
+    // rows and the line through the middle two agree at y within kCheckedInterpolationTolerance
+    // x the unoccluded F (a shadow narrower than the rows' spacing, centred on this row, bends
+    // the cubic away from the line). A stretch of at least kMinRowPairRun pixels that pair is
+    // evaluated at both ends and the middle; when those three saw the same blockers and agree
+    // with the cubic within the same tolerance, the rest of the stretch takes the cubic.
+    // Everything else is shaded by checked interpolation along the row (shadeCheckedRun), a
+    // failed stretch from its three samples on.
+    void shadeRowPairRun(int x0, int x1) {
+        mCheckMedia = false;
+        std::vector<uint8_t>& paired = mTs.paired;
+        paired.assign(size_t(x1 - x0 + 1), 0);
+        std::vector<uint32_t>& mine = mTs.rowCandidates;
+        std::vector<uint32_t>& theirs = mTs.rowBlockers;
+        for (int x = x0; x <= x1; ++x) {
+            const PixelShadow& a = mRows[1][size_t(x)];
+            const int object = mTs.hits[size_t(x)].object;
+            bool agree = true;
+            for (const PixelShadow* row : mRows) {
+                const PixelShadow& p = row[size_t(x)];
+                agree = agree && p.known && p.object == object && p.sameBlockers(a);
+            }
+            if (!agree) continue;
+            const int self = object - int(mCtx.scene.receivers.size());
+            auto notSelf = [self](uint32_t i) { return int(i) != self; };
+            mine.clear();
+            std::copy_if(mTs.pixelObstacles.begin() + mTs.pixelObstacleStart[size_t(x - mX0)],
+                         mTs.pixelObstacles.begin() + mTs.pixelObstacleStart[size_t(x - mX0 + 1)],
+                         std::back_inserter(mine), notSelf);
+            std::sort(mine.begin(), mine.end());
+            theirs.clear();
+            std::copy_if(a.blockers.begin(), a.blockers.begin() + a.blockerCount,
+                         std::back_inserter(theirs), notSelf);
+            if (mine != theirs) continue;
+            const Vec3 n = mTs.hits[size_t(x)].normal;
+            const double open = glm::dot(unoccludedG(mLight, receiver(x)).g, n);
+            const double bend = std::abs(glm::dot(cubicShadow(x) - lineShadow(x), n));
+            paired[size_t(x - x0)] = bend <= kCheckedInterpolationTolerance * open;
+        }
+        // Stretches too short to gain from the pairing are shaded along the row with their
+        // neighbours.
+        int x = x0;
+        while (x <= x1) {
+            int end = x;
+            while (end + 1 <= x1 && paired[size_t(end + 1 - x0)] == paired[size_t(x - x0)]) ++end;
+            if (paired[size_t(x - x0)] && end - x + 1 >= kMinRowPairRun) {
+                pairedStretch(x, end);
+                x = end + 1;
+                continue;
+            }
+            // A stretch along the row: up to the next paired stretch long enough to pair.
+            int stop = end;
+            while (stop + 1 <= x1) {
+                int e = stop + 1;
+                while (e + 1 <= x1 && paired[size_t(e + 1 - x0)] == paired[size_t(stop + 1 - x0)]) ++e;
+                if (paired[size_t(stop + 1 - x0)] && e - stop >= kMinRowPairRun) break;
+                stop = e;
+            }
+            shadeCheckedRun(x, stop, /*media=*/false);
+            x = stop + 1;
+        }
+    }
+
+    static constexpr int kMinRowPairRun = 6;
+
+    // The shadow at pixel x of this row from the four rows' records: the cubic through rows
+    // y - 3s, y - s, y + s, y + 3s at y, and the line through the middle two.
+    Vec3 cubicShadow(int x) const {
+        return (9.0 * (mRows[1][size_t(x)].shadow + mRows[2][size_t(x)].shadow) -
+                mRows[0][size_t(x)].shadow - mRows[3][size_t(x)].shadow) / 16.0;
+    }
+    Vec3 lineShadow(int x) const {
+        return 0.5 * (mRows[1][size_t(x)].shadow + mRows[2][size_t(x)].shadow);
+    }
+
+    void pairedStretch(int l, int r) {
+        const int m = (l + r) / 2;
+        const Sample sl = checkedSample(l), sr = checkedSample(r), sm = checkedSample(m);
+        auto agrees = [&](int x, const Sample& s) {
+            if (!mRows[1][size_t(x)].sameBlockers(s.blockers)) return false;
+            const Vec3 n = mTs.hits[size_t(x)].normal;
+            const Vec3 g = s.openG - cubicShadow(x);
+            const double open = glm::dot(s.openG, n);
+            const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(s.g, n));
+            return open > 0.0 ? diff <= kCheckedInterpolationTolerance * open : diff == 0.0;
+        };
+        if (!(agrees(l, sl) && agrees(r, sr) && agrees(m, sm))) {
+            refineCheckedRun(l, sl, m, sm, r, sr);
+            return;
+        }
+        const double checked = std::max({sl.errorBound, sm.errorBound, sr.errorBound});
+        for (int i = l + 1; i < r; ++i) {
+            if (i == m) continue;
+            const Receiver rc = receiver(i);
+            const GWithDerivative open = unoccludedG(mLight, rc);
+            double rowsBound = 0.0;
+            Vec3 gradientShadow(0.0);
+            for (size_t k = 0; k < 4; ++k) {
+                const PixelShadow& p = mRows[k][size_t(i)];
+                rowsBound = std::max(rowsBound, p.bound);
+                gradientShadow += (k == 1 || k == 2 ? 9.0 / 16.0 : -1.0 / 16.0) * p.shadowGradient;
+            }
+            const Vec3 g = open.g - cubicShadow(i);
+            const Vec3 grad = gradientOf(open.dg, rc.normal) - gradientShadow;
+            const double f = std::max(0.0, glm::dot(g, rc.normal));
+            const double bound = std::max(checked, rowsBound) +
+                                 kCheckedInterpolationTolerance * glm::dot(open.g, rc.normal);
+            store(i, f, grad, bound);
+            mTs.sums[size_t(i)].shadowed = true;
+            ++mTs.stats.interpolatedPixels;
+            ++mTs.stats.rowPairPixels;
+            if (mOut) {
+                PixelShadow& p = mOut[size_t(i)];
+                p = mRows[1][size_t(i)];
+                p.shadow = open.g - g;
+                p.shadowGradient = gradientShadow;
+                p.bound = bound;
+            }
+        }
     }
 
     void refineCheckedRun(int l, const Sample& sl, int m, const Sample& sm, int r,
@@ -747,6 +935,9 @@ private:
         store(i, f, grad, bound);
         mTs.sums[size_t(i)].shadowed = true;
         ++mTs.stats.interpolatedPixels;
+        // The check saw the same blockers at its five samples (media runs record nothing).
+        if (!mCheckMedia)
+            record(i, open.g - g, gradientOf(open.dg, r.normal) - grad, bound, s0.blockers);
     }
 
     // The candidates that may block a segment from some pixel of [l, r] to the light (the
@@ -935,9 +1126,12 @@ private:
     bool mReuse = false;  // reuse first-level rays in this span (AciSettings::reuseCorners)
     bool mCheckMedia = false;  // shadeCheckedRun: the run is of media pixels
     int mX0 = 0;               // the span's first pixel
+    PixelShadow* mOut = nullptr;          // this row's records for this light (rowPairs)
+    // A paired row's: the records of rows y - 3s, y - s, y + s, y + 3s (rowPairs).
+    std::array<const PixelShadow*, 4> mRows{};
 };
 
-void renderRow(const Context& ctx, ThreadState& ts, int y) {
+void renderRow(const Context& ctx, ThreadState& ts, int y, const RowLink& link = RowLink{}) {
     const int width = ctx.camera.width();
     const RenderSettings& settings = ctx.settings;
     RenderStats& st = ts.stats;
@@ -951,7 +1145,7 @@ void renderRow(const Context& ctx, ThreadState& ts, int y) {
 
     for (size_t li = 0; li < ctx.scene.lights.size(); ++li) {
         const RectLight& light = ctx.scene.lights[li];
-        SpanShader shader(ctx, ts, light, li, y);
+        SpanShader shader(ctx, ts, light, li, y, link);
         if (settings.method == Method::AciPixel) {
             for (int x = 0; x < width; ++x) {
                 if (ts.hits[size_t(x)].object >= 0) shader.shadePixel(x);
@@ -1092,6 +1286,9 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                               offsetPerPoint, rayOffsetFloor(scene, occluder),
                               result.color,   result.aovs, nullptr};
 
+    // Row pairs (RenderSettings::rowPairs): only where rows are shaded by checked interpolation.
+    const bool rowPairs = settings.rowPairs && settings.method == Method::Aci &&
+                          settings.aci.coverage && settings.coherence && height >= 3;
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;
     int rowsDone = 0;
@@ -1105,20 +1302,74 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
                                                     settings.volumeSamples);
             ctx.inScatter = inScatter.get();
         }
-        tbb::parallel_for(tbb::blocked_range<int>(0, height, 1),
-                          [&](const tbb::blocked_range<int>& rows) {
-                              detail::tsanAcquire(&forkKey);
-                              auto& state = states.local();
-                              if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
-                              for (int y = rows.begin(); y < rows.end(); ++y) {
-                                  renderRow(ctx, *state, y);
-                                  if (progress) {
-                                      std::lock_guard<std::mutex> lock(progressMutex);
-                                      progress(++rowsDone, height);
+        // Renders rows[i] for i in [0, n), in parallel, row y linked by link(y).
+        auto renderSome = [&](const std::vector<int>& rows, auto&& link) {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, rows.size(), 1),
+                              [&](const tbb::blocked_range<size_t>& r) {
+                                  detail::tsanAcquire(&forkKey);
+                                  auto& state = states.local();
+                                  if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
+                                  for (size_t i = r.begin(); i < r.end(); ++i) {
+                                      renderRow(ctx, *state, rows[i], link(rows[i]));
+                                      if (progress) {
+                                          std::lock_guard<std::mutex> lock(progressMutex);
+                                          progress(++rowsDone, height);
+                                      }
                                   }
-                              }
-                              detail::tsanRelease(&joinKey);
-                          });
+                                  detail::tsanRelease(&joinKey);
+                              });
+        };
+        if (!rowPairs) {
+            std::vector<int> all(static_cast<size_t>(height));
+            for (int y = 0; y < height; ++y) all[size_t(y)] = y;
+            renderSome(all, [](int) { return RowLink{}; });
+            return;
+        }
+        // Row pairs, in bands of rows: every fourth row first, on its own; then the rows
+        // halfway between those (y % 4 == 2), each from the rows 2 and 6 above and below; then
+        // the odd rows, from the rows 1 and 3 above and below. Rows that others read keep their
+        // records. The first two passes run ahead of the band by what the next passes read,
+        // so that every row finds the rows it is paired with done whatever the band: which
+        // rows pair depends on neither the band nor the threads, and the image is the same for
+        // any. Rows too near the image's top or bottom for their four rows are shaded on their
+        // own.
+        const size_t perRow = scene.lights.size() * size_t(width);
+        std::vector<std::vector<PixelShadow>> records(static_cast<size_t>(height));
+        std::vector<char> done(static_cast<size_t>(height), 0);
+        auto pass = [&](int step, int from, int to) {
+            std::vector<int> rows;
+            for (int y = from; y <= to; ++y) {
+                const bool mine = step == 4   ? y % 4 == 0 || y == height - 1
+                                  : step == 2 ? y % 4 == 2 && y != height - 1
+                                              : y % 2 == 1 && y != height - 1;
+                if (mine && !done[size_t(y)]) rows.push_back(y);
+            }
+            for (int y : rows) {
+                done[size_t(y)] = 1;
+                if (step > 1) records[size_t(y)].assign(perRow, PixelShadow{});
+            }
+            renderSome(rows, [&, step](int y) {
+                RowLink l;
+                if (step > 1) l.out = records[size_t(y)].data();
+                if (step < 4 && y - 3 * step >= 0 && y + 3 * step <= height - 1) {
+                    for (int k = 0; k < 4; ++k) {
+                        const std::vector<PixelShadow>& r = records[size_t(y + (2 * k - 3) * step)];
+                        l.rows[size_t(k)] = r.empty() ? nullptr : r.data();
+                    }
+                }
+                return l;
+            });
+        };
+        const int band = std::max(64, 16 * threads);
+        int freed = 0;  // records of rows before this one are gone
+        for (int top = 0; top < height; top += band) {
+            const int last = std::min(height - 1, top + band - 1);
+            pass(4, top, std::min(height - 1, last + 12));
+            pass(2, top, std::min(height - 1, last + 4));
+            pass(1, top, last);
+            // Later rows read back at most 6 rows.
+            for (; freed < last - 8; ++freed) std::vector<PixelShadow>().swap(records[size_t(freed)]);
+        }
     };
     if (settings.threads < 0) {
         renderRows();

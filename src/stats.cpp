@@ -34,6 +34,7 @@ void RenderStats::merge(const RenderStats& o) {
     coarserEvaluations += o.coarserEvaluations;
     patternEvaluations += o.patternEvaluations;
     interpolatedPixels += o.interpolatedPixels;
+    rowPairPixels += o.rowPairPixels;
     restarts += o.restarts;
     squaresRefined += o.squaresRefined;
     gridIncreases += o.gridIncreases;
@@ -74,6 +75,7 @@ std::string RenderStats::toJson() const {
     j["coarser_evaluations"] = coarserEvaluations;
     j["pattern_evaluations"] = patternEvaluations;
     j["interpolated_pixels"] = interpolatedPixels;
+    j["row_pair_pixels"] = rowPairPixels;
     j["restarts"] = restarts;
     j["squares_refined"] = squaresRefined;
     j["grid_increases"] = gridIncreases;

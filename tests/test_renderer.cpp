@@ -456,6 +456,51 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
     CHECK_FALSE(above.mayMeet(Vec3(1.5, 0.0, 1.0), 0.2));  // beside: the side plane is at x = 0.5
 }
 
+TEST_CASE("row pairs interpolate between rows only where the rows agree, on any thread count",
+          "[renderer][coherence]") {
+    // The pebbles of the test above: shadows a few pixels wide, which rows two or four apart
+    // could step over, and a smooth dimming from the sphere near the light, which they share.
+    // A pixel pairs only when its rows above and below saw the same blockers and it has no
+    // other candidate (renderer.cpp, shadeRowPairRun).
+    std::vector<Obstacle> obstacles = {{"near the light", AnalyticSphere{Vec3(0.1, 0.0, 1.85), 0.05}}};
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-0.9, 0.9);
+    for (int k = 0; k < 12; ++k)
+        obstacles.push_back({"pebble", AnalyticSphere{Vec3(u(rng), u(rng), 0.12), 0.025}});
+    // 150 rows: three bands of 64 rows on one thread, two of 80 on five.
+    const Scene scene = test::squareLightScene(150, obstacles);
+    RenderSettings s = settingsFor(Method::Aci, 1);
+    const RenderResult paired = render(scene, s);
+    s.threads = 5;
+    const RenderResult five = render(scene, s);
+    CHECK(paired.color.data == five.color.data);
+    CHECK(paired.aovs.errorBound.data == five.aovs.errorBound.data);
+    CHECK(paired.stats.rowPairPixels == five.stats.rowPairPixels);
+    s.rowPairs = false;
+    const RenderResult single = render(scene, s);
+    INFO("row pairs: " << paired.stats.rowPairPixels << " pixels, evaluations "
+                       << paired.stats.aciEvaluations << " / " << single.stats.aciEvaluations);
+    CHECK(paired.stats.rowPairPixels > 3000);
+    CHECK(single.stats.rowPairPixels == 0);
+    CHECK(paired.stats.aciEvaluations < single.stats.aciEvaluations);
+    double worst = 0.0, peak = 0.0, outside = 0.0;
+    for (int y = 0; y < 150; ++y)
+        for (int x = 0; x < 150; ++x) {
+            const double a = paired.aovs.formFactor.at(x, y, 0);
+            const double b = single.aovs.formFactor.at(x, y, 0);
+            peak = std::max(peak, b);
+            worst = std::max(worst, std::abs(a - b));
+            // Both answers' bounds together hold their difference.
+            outside = std::max(outside, std::abs(a - b) - paired.aovs.errorBound.at(x, y, 0) -
+                                            single.aovs.errorBound.at(x, y, 0));
+        }
+    // As for checked interpolation along a row: 0.001 of the largest F; a pebble's shadow
+    // stepped over would miss by tens of percent.
+    INFO("largest difference " << worst << " for a largest F of " << peak);
+    CHECK(worst < 0.001 * peak);
+    CHECK(outside <= 0.0);
+}
+
 TEST_CASE("one and two threads give the same pixels, bit for bit", "[renderer]") {
     for (int which = 0; which < 2; ++which) {
         Scene scene = which == 0

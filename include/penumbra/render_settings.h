@@ -178,6 +178,13 @@ struct RenderSettings {
     /// obstacles' footprints on the light are all wide takes one dichotomy step fewer than
     /// aci.steps. JSON `aci_fixed_steps` (true turns it off), `--aci-fixed-steps`.
     bool adaptiveSteps = true;
+    /// Beyond the paper, certified tangent mode: every fourth row is shaded on its own, the
+    /// rows between are interpolated from the rows s and 3s above and below (s = 2, then 1)
+    /// over stretches where those rows saw the same blockers, the pixel no other candidate and
+    /// the shadow bends little across them, once three evaluations on the stretch agree
+    /// (docs/rendering.md, pipeline step 4). JSON `aci_no_row_pairs` (true turns it off),
+    /// `--aci-no-row-pairs`.
+    bool rowPairs = true;
     int maxGridFactor = 2;     ///< the adaptive grid stays within [p, maxGridFactor x p]
     /// Monte Carlo settings (samples, mc-adaptive's threshold, seed). `samples` 0 (the default
     /// here) takes defaultSamples(method); rayOffset is taken from `aci.rayOffset`, and each

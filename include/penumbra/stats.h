@@ -58,6 +58,7 @@ struct RenderStats {
     uint64_t coarserEvaluations = 0;
     uint64_t patternEvaluations = 0;         ///< pixel-light pairs where only the pattern was traced
     uint64_t interpolatedPixels = 0;         ///< pixel-light pairs whose value was interpolated
+    uint64_t rowPairPixels = 0;  ///< of those, on odd rows between the rows above and below
     uint64_t restarts = 0;                   ///< ACI restarts one level deeper (section 3.2)
     uint64_t squaresRefined = 0;
     uint64_t gridIncreases = 0;              ///< adaptive first-level density: finer grid chosen

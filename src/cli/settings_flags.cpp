@@ -40,6 +40,11 @@ const std::map<std::string, FlagInfo>& flagTable() {
          {Kind::Flag, false,
           "Tangent mode: every evaluation takes --aci-steps (by default one whose obstacles' "
           "footprints on the light are all wide takes one step fewer; docs/estimator.md)"}},
+        {"aci_no_row_pairs",
+         {Kind::Flag, false,
+          "Tangent mode: shade every row on its own (by default odd rows are interpolated "
+          "between the rows above and below where three evaluations confirm it; "
+          "docs/rendering.md)"}},
         {"max_span", {Kind::Int, true, "Longest span of pixels shaded together"}},
         {"samples",
          {Kind::Int, false,

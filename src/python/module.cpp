@@ -52,7 +52,7 @@ const std::vector<std::string> kProbeKeys = {"aci_grid",         "aci_steps",   
                                              "samples",          "mc_threshold", "mc_max_depth",
                                              "mc_initial_depth", "seed",         "threads"};
 const std::vector<std::string> kRenderKeys = {
-    "aci_grid",     "aci_steps",      "aci_mode",         "aci_fixed_steps", "max_span",
+    "aci_grid",     "aci_steps",      "aci_mode",         "aci_fixed_steps", "aci_no_row_pairs", "max_span",
     "samples",      "mc_threshold",   "mc_max_depth",     "mc_initial_depth", "seed",
     "threads",      "volume_cache",   "volume_samples",   "hide_volumes"};
 
@@ -76,7 +76,7 @@ py::int_ asInteger(py::handle v, const std::string& key) {
 
 // A keyword's value as JSON, its Python type checked.
 nlohmann::json jsonValue(py::handle v, const std::string& key) {
-    if (key == "hide_volumes" || key == "aci_fixed_steps") {
+    if (key == "hide_volumes" || key == "aci_fixed_steps" || key == "aci_no_row_pairs") {
         if (!PyBool_Check(v.ptr())) throw py::type_error(key + ": must be a bool, got " + typeName(v));
         return v.ptr() == Py_True;
     }
@@ -683,7 +683,7 @@ PYBIND11_MODULE(penumbra, m) {
              "width, height: image size (default: the camera's).\n"
              "method: 'aci', 'aci-pixel', 'reference', 'mc-adaptive', 'mc-solid-angle', "
              "'mc-ratio'.\n"
-             "settings: aci_grid, aci_steps, aci_mode, aci_fixed_steps, max_span, samples, "
+             "settings: aci_grid, aci_steps, aci_mode, aci_fixed_steps, aci_no_row_pairs, max_span, samples, "
              "mc_threshold, mc_max_depth, mc_initial_depth, seed, threads, volume_cache, "
              "volume_samples, hide_volumes.\n\n"
              "Returns (image, stats): image a float32 array (H, W, 3) of linear radiance, "

@@ -96,6 +96,7 @@ class Scene:
         aci_steps: Optional[int] = None,
         aci_mode: Optional[str] = None,
         aci_fixed_steps: Optional[bool] = None,
+        aci_no_row_pairs: Optional[bool] = None,
         max_span: Optional[int] = None,
         samples: Optional[int] = None,
         mc_threshold: Optional[float] = None,
