@@ -404,7 +404,7 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
     // the pyramid are dropped.
     std::mt19937 rng(11);
     std::uniform_real_distribution<double> u(-2.0, 2.0), t(0.0, 1.0), size(0.02, 0.4);
-    int crossedBoxes = 0, crossedSpheres = 0, dropped = 0;
+    int crossedBoxes = 0, crossedSpheres = 0, dropped = 0, droppedExactly = 0;
     for (int trial = 0; trial < 200; ++trial) {
         const Vec3 apex(u(rng), u(rng), u(rng) - 2.0);
         const Vec3 corner(u(rng), u(rng), 2.0 + 0.5 * u(rng));
@@ -433,8 +433,11 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
             if (boxCrossed) {
                 ++crossedBoxes;
                 REQUIRE(pyramid.mayMeet(box));
+                REQUIRE(pyramid.mayMeetExactly(box));
             } else if (!pyramid.mayMeet(box)) {
                 ++dropped;
+            } else if (!pyramid.mayMeetExactly(box)) {
+                ++droppedExactly;
             }
             if (sphereCrossed) {
                 ++crossedSpheres;
@@ -445,6 +448,9 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
     CHECK(crossedBoxes > 200);
     CHECK(crossedSpheres > 200);
     CHECK(dropped > 2000);
+    // The box's own axes and the edge crosses drop boxes beside the pyramid's edges.
+    INFO("boxes dropped by the planes " << dropped << ", by the other axes " << droppedExactly);
+    CHECK(droppedExactly > 20);
     // A box just beyond the polygon's plane, inside the pyramid's sides: dropped.
     const std::vector<Vec3> square = {Vec3(-1, -1, 2), Vec3(1, -1, 2), Vec3(1, 1, 2), Vec3(-1, 1, 2)};
     const Pyramid above(Vec3(0, 0, 0), 0.0, square);
@@ -454,6 +460,13 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
     CHECK_FALSE(above.mayMeet(beyond));
     CHECK(above.mayMeet(Vec3(0.0, 0.0, 1.9), 0.05));
     CHECK_FALSE(above.mayMeet(Vec3(1.5, 0.0, 1.0), 0.2));  // beside: the side plane is at x = 0.5
+    // Beside the edge from the apex to (1, 1, 2), 0.3 from it along the outward normal
+    // (1, 1, -1) / sqrt(3): outside the pyramid by 0.05, yet 0.232 outside each of the two
+    // side planes that meet there, within its radius of both.
+    const Vec3 besideEdge = Vec3(0.5, 0.5, 1.0) + 0.3 * glm::normalize(Vec3(1.0, 1.0, -1.0));
+    CHECK_FALSE(above.mayMeet(besideEdge, 0.25));
+    CHECK(above.mayMeet(besideEdge, 0.31));
+
 }
 
 TEST_CASE("row pairs interpolate between rows only where the rows agree, on any thread count",

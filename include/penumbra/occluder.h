@@ -82,7 +82,12 @@ public:
     /// polygon's edges, and the polygon's own plane) has all of `box`, grown by the pad,
     /// strictly outside.
     bool mayMeet(const Box3& box) const;
-    /// The same for a sphere.
+    /// mayMeet(box), and false also when the grown box is separated from the pyramid by one
+    /// of the box's planes or by a plane along a box axis and a pyramid edge (the remaining
+    /// separating axes of two convex polyhedra): exact, and some 30 projections dearer.
+    bool mayMeetExactly(const Box3& box) const;
+    /// False only when the sphere lies farther than the pad from the pyramid (its distance to
+    /// the nearest face, edge or corner).
     bool mayMeet(const Vec3& centre, double radius) const;
 
 private:
@@ -92,6 +97,8 @@ private:
     };
     std::vector<Plane> mPlanes;
     double mPad = 0.0;
+    Vec3 mApex{0.0};
+    std::vector<Vec3> mPolygon;  // empty when a plane was left out: the plane tests alone
 };
 
 /// A participating medium between receivers and lights: a density grid and the extinction per
