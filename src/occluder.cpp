@@ -649,10 +649,11 @@ Vec3 gradientAt(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& p) {
 /// ray is V-shaped, and the best of samples half a voxel apart sits up to a quarter voxel of
 /// slope above its bottom, which put the clearance's zero outside the surface the intersector
 /// hits (a box level set's shadow came out up to 2.6% of the light too bright in the tangent
-/// mode).
+/// mode). Without `normal` the gradient at the closest point is left for the caller.
 template <typename Accessor>
 Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3& from,
-                       const Vec3& dir, double t0, double t1, bool polish = false) {
+                       const Vec3& dir, double t0, double t1, bool polish = false,
+                       bool normal = true) {
     const double voxel = grid.voxelSize()[0];
     auto phiAt = [&](double t) {
         const Vec3 p = from + t * dir;
@@ -687,7 +688,7 @@ Clearance traceMinimum(const openvdb::FloatGrid& grid, Accessor& acc, const Vec3
         if (phi < minPhi) minPhi = phi, c.at = t;
     }
     c.distance = minPhi;
-    if (std::isfinite(minPhi)) {
+    if (std::isfinite(minPhi) && normal) {
         const Vec3 p = from + c.at * dir;
         bool blended = false;
         if (polish) {
@@ -730,8 +731,13 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
         slot.farAccessor = std::make_unique<openvdb::FloatGrid::ConstAccessor>(
             coarse.getConstAccessor());
     }
-    Clearance c = traceMinimum(coarse, *slot.farAccessor, from, dir, t0, t1);
+    // The companion's gradient only where its answer is returned: a refined one replaces it.
+    Clearance c = traceMinimum(coarse, *slot.farAccessor, from, dir, t0, t1, false, false);
     if (!std::isfinite(c.distance)) return Clearance{};
+    auto withNormal = [&](Clearance r) {
+        r.normal = gradientAt(coarse, *slot.farAccessor, from + r.at * dir);
+        return r;
+    };
     const double coarseVoxel = coarse.voxelSize()[0];
     const double fineBand = slot.grid->background();
     // The bound: the march samples every 0.8 |phi| (at least half a voxel) and phi is
@@ -749,11 +755,11 @@ Clearance levelSetClearance(LevelSetSlot& slot, const openvdb::FloatGrid& coarse
         return unknown;
     }
     c.bound = coarseBound(c.distance);
-    if (std::abs(c.distance) > fineBand + coarseVoxel) return c;
+    if (std::abs(c.distance) > fineBand + coarseVoxel) return withNormal(c);
     const double w = 3.0 * coarseVoxel;
     Clearance f = traceMinimum(*slot.grid, slot.accessor, from, dir, std::max(t0, c.at - w),
                                std::min(t1, c.at + w), true);
-    if (!(std::abs(f.distance) < 0.98 * fineBand)) return c;
+    if (!(std::abs(f.distance) < 0.98 * fineBand)) return withNormal(c);
     if (f.distance > 0.0) {
         // Outside the refined window only the companion's bound holds.
         f.bound = std::min(c.bound, std::max(0.0, 0.6 * f.distance - 0.5 * slot.grid->voxelSize()[0]));

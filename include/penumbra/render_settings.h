@@ -3,9 +3,9 @@
 /// the Monte Carlo baselines' (McSettings) and the renderer's (RenderSettings), each with one
 /// range, and one set of names for them, the JSON model's (docs/render-settings.md):
 ///
-///   method, width, height, threads, aci_grid, aci_steps, aci_mode, aci_fixed_steps, max_span,
-///   samples, mc_threshold, mc_max_depth, mc_initial_depth, seed, volume_cache, volume_samples,
-///   hide_volumes
+///   method, width, height, threads, aci_grid, aci_steps, aci_mode, aci_fixed_steps,
+///   aci_no_row_pairs, max_span, samples, mc_threshold, mc_max_depth, mc_initial_depth, seed,
+///   volume_cache, volume_samples, hide_volumes
 ///
 /// Batch manifests use these keys; the command line's flags are the same names with dashes
 /// (--aci-grid); Python's keywords are the names themselves. RenderSettings::readJson reads
