@@ -744,10 +744,10 @@ private:
     // rows and the line through the middle two agree at y within kCheckedInterpolationTolerance
     // x the unoccluded F (a shadow narrower than the rows' spacing, centred on this row, bends
     // the cubic away from the line). A stretch of at least kMinRowPairRun pixels that pair is
-    // evaluated at both ends and the middle; when those three saw the same blockers and agree
-    // with the cubic within the same tolerance, the rest of the stretch takes the cubic.
-    // Everything else is shaded by checked interpolation along the row (shadeCheckedRun), a
-    // failed stretch from its three samples on.
+    // evaluated at its middle; when that pixel saw the same blockers and agrees with the cubic
+    // within the same tolerance, the rest of the stretch takes the cubic. Everything else is
+    // shaded by checked interpolation along the row (shadeCheckedRun), a failed stretch from
+    // its middle and its two ends on.
     void shadeRowPairRun(int x0, int x1) {
         mCheckMedia = false;
         std::vector<uint8_t>& paired = mTs.paired;
@@ -817,7 +817,7 @@ private:
 
     void pairedStretch(int l, int r) {
         const int m = (l + r) / 2;
-        const Sample sl = checkedSample(l), sr = checkedSample(r), sm = checkedSample(m);
+        const Sample sm = checkedSample(m);
         auto agrees = [&](int x, const Sample& s) {
             if (!mRows[1][size_t(x)].sameBlockers(s.blockers)) return false;
             const Vec3 n = mTs.hits[size_t(x)].normal;
@@ -826,12 +826,13 @@ private:
             const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(s.g, n));
             return open > 0.0 ? diff <= kCheckedInterpolationTolerance * open : diff == 0.0;
         };
-        if (!(agrees(l, sl) && agrees(r, sr) && agrees(m, sm))) {
+        if (!agrees(m, sm)) {
+            const Sample sl = checkedSample(l), sr = checkedSample(r);
             refineCheckedRun(l, sl, m, sm, r, sr);
             return;
         }
-        const double checked = std::max({sl.errorBound, sm.errorBound, sr.errorBound});
-        for (int i = l + 1; i < r; ++i) {
+        const double checked = sm.errorBound;
+        for (int i = l; i <= r; ++i) {
             if (i == m) continue;
             const Receiver rc = receiver(i);
             const GWithDerivative open = unoccludedG(mLight, rc);

@@ -181,7 +181,7 @@ struct RenderSettings {
     /// Beyond the paper, certified tangent mode: every fourth row is shaded on its own, the
     /// rows between are interpolated from the rows s and 3s above and below (s = 2, then 1)
     /// over stretches where those rows saw the same blockers, the pixel no other candidate and
-    /// the shadow bends little across them, once three evaluations on the stretch agree
+    /// the shadow bends little across them, once an evaluation at the stretch's middle agrees
     /// (docs/rendering.md, pipeline step 4). JSON `aci_no_row_pairs` (true turns it off),
     /// `--aci-no-row-pairs`.
     bool rowPairs = true;

@@ -43,7 +43,7 @@ const std::map<std::string, FlagInfo>& flagTable() {
         {"aci_no_row_pairs",
          {Kind::Flag, false,
           "Tangent mode: shade every row on its own (by default odd rows are interpolated "
-          "between the rows above and below where three evaluations confirm it; "
+          "between the rows above and below where the rows agree and an evaluation confirms it; "
           "docs/rendering.md)"}},
         {"max_span", {Kind::Int, true, "Longest span of pixels shaded together"}},
         {"samples",
