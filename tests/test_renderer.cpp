@@ -192,6 +192,40 @@ TEST_CASE("shaft culling gives the image of rendering with every obstacle as a c
     if (mode == AciMode::Arcs) CHECK(a.stats.interpolatedPixels == b.stats.interpolatedPixels);
 }
 
+namespace {
+
+// A small sphere just below the light and twelve pebbles near the ground (the coherence tests),
+// seen from above at size x size.
+Scene pebbleScene(int size) {
+    std::vector<Obstacle> obstacles = {{"near the light", AnalyticSphere{Vec3(0.1, 0.0, 1.85), 0.05}}};
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-0.9, 0.9);
+    for (int k = 0; k < 12; ++k)
+        obstacles.push_back({"pebble", AnalyticSphere{Vec3(u(rng), u(rng), 0.12), 0.025}});
+    return test::squareLightScene(size, obstacles);
+}
+
+// How far two renders' form factors are apart: the largest difference, the largest F of `b`,
+// and by how much the difference exceeds the two pixels' error bounds together (<= 0: never).
+struct FormFactorGap {
+    double worst = 0.0, peak = 0.0, outside = 0.0;
+};
+FormFactorGap formFactorGap(const RenderResult& a, const RenderResult& b) {
+    FormFactorGap g;
+    const Image& fa = a.aovs.formFactor;
+    for (int y = 0; y < fa.height; ++y)
+        for (int x = 0; x < fa.width; ++x) {
+            const double va = fa.at(x, y, 0), vb = b.aovs.formFactor.at(x, y, 0);
+            g.peak = std::max(g.peak, vb);
+            g.worst = std::max(g.worst, std::abs(va - vb));
+            g.outside = std::max(g.outside, std::abs(va - vb) - a.aovs.errorBound.at(x, y, 0) -
+                                                b.aovs.errorBound.at(x, y, 0));
+        }
+    return g;
+}
+
+}  // namespace
+
 TEST_CASE("the default interpolates only where a check and the blocking obstacles allow",
           "[renderer][coherence]") {
     // A small sphere just below the light dims the whole ground a little (its shadow on the
@@ -199,12 +233,7 @@ TEST_CASE("the default interpolates only where a check and the blocking obstacle
     // ground cast shadows a few pixels wide, which a check at quarter points alone could step
     // over. Interpolation over [l, r] needs every obstacle that may shadow a pixel of it to
     // block rays at each of the five evaluated pixels (renderer.cpp, shadeCheckedRun).
-    std::vector<Obstacle> obstacles = {{"near the light", AnalyticSphere{Vec3(0.1, 0.0, 1.85), 0.05}}};
-    std::mt19937 rng(7);
-    std::uniform_real_distribution<double> u(-0.9, 0.9);
-    for (int k = 0; k < 12; ++k)
-        obstacles.push_back({"pebble", AnalyticSphere{Vec3(u(rng), u(rng), 0.12), 0.025}});
-    const Scene scene = test::squareLightScene(120, obstacles);
+    const Scene scene = pebbleScene(120);
     RenderSettings s = settingsFor(Method::Aci, 2);
     const RenderResult coherent = render(scene, s);
     s.coherence = false;
@@ -219,14 +248,8 @@ TEST_CASE("the default interpolates only where a check and the blocking obstacle
     // without a ray, so rays alone hardly differ).
     CHECK(coherent.stats.shadowRays + coherent.stats.footprintSamples <
           each.stats.shadowRays + each.stats.footprintSamples);
-    double worst = 0.0, peak = 0.0;
-    for (int y = 0; y < 120; ++y)
-        for (int x = 0; x < 120; ++x) {
-            const double a = coherent.aovs.formFactor.at(x, y, 0);
-            const double b = each.aovs.formFactor.at(x, y, 0);
-            peak = std::max(peak, b);
-            worst = std::max(worst, std::abs(a - b));
-        }
+    const FormFactorGap gap = formFactorGap(coherent, each);
+    const double worst = gap.worst, peak = gap.peak;
     // The check lets the shadow's quadratic miss by 0.0005 of the unoccluded form factor over
     // an interval twice as long as the ones interpolated: 0.001 of the image's largest F is a
     // bound with room. A pebble's shadow interpolated over would miss by tens of percent.
@@ -466,7 +489,6 @@ TEST_CASE("a pyramid keeps every box and sphere that a segment to its polygon cr
     const Vec3 besideEdge = Vec3(0.5, 0.5, 1.0) + 0.3 * glm::normalize(Vec3(1.0, 1.0, -1.0));
     CHECK_FALSE(above.mayMeet(besideEdge, 0.25));
     CHECK(above.mayMeet(besideEdge, 0.31));
-
 }
 
 TEST_CASE("row pairs interpolate between rows only where the rows agree, on any thread count",
@@ -475,13 +497,8 @@ TEST_CASE("row pairs interpolate between rows only where the rows agree, on any 
     // could step over, and a smooth dimming from the sphere near the light, which they share.
     // A pixel pairs only when its rows above and below saw the same blockers and it has no
     // other candidate (renderer.cpp, shadeRowPairRun).
-    std::vector<Obstacle> obstacles = {{"near the light", AnalyticSphere{Vec3(0.1, 0.0, 1.85), 0.05}}};
-    std::mt19937 rng(7);
-    std::uniform_real_distribution<double> u(-0.9, 0.9);
-    for (int k = 0; k < 12; ++k)
-        obstacles.push_back({"pebble", AnalyticSphere{Vec3(u(rng), u(rng), 0.12), 0.025}});
     // 150 rows: three bands of 64 rows on one thread, two of 80 on five.
-    const Scene scene = test::squareLightScene(150, obstacles);
+    const Scene scene = pebbleScene(150);
     RenderSettings s = settingsFor(Method::Aci, 1);
     const RenderResult paired = render(scene, s);
     s.threads = 5;
@@ -496,17 +513,9 @@ TEST_CASE("row pairs interpolate between rows only where the rows agree, on any 
     CHECK(paired.stats.rowPairPixels > 3000);
     CHECK(single.stats.rowPairPixels == 0);
     CHECK(paired.stats.aciEvaluations < single.stats.aciEvaluations);
-    double worst = 0.0, peak = 0.0, outside = 0.0;
-    for (int y = 0; y < 150; ++y)
-        for (int x = 0; x < 150; ++x) {
-            const double a = paired.aovs.formFactor.at(x, y, 0);
-            const double b = single.aovs.formFactor.at(x, y, 0);
-            peak = std::max(peak, b);
-            worst = std::max(worst, std::abs(a - b));
-            // Both answers' bounds together hold their difference.
-            outside = std::max(outside, std::abs(a - b) - paired.aovs.errorBound.at(x, y, 0) -
-                                            single.aovs.errorBound.at(x, y, 0));
-        }
+    // Both answers' bounds together hold their difference (outside <= 0).
+    const FormFactorGap gap = formFactorGap(paired, single);
+    const double worst = gap.worst, peak = gap.peak, outside = gap.outside;
     // As for checked interpolation along a row: 0.001 of the largest F; a pebble's shadow
     // stepped over would miss by tens of percent.
     INFO("largest difference " << worst << " for a largest F of " << peak);
