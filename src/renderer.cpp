@@ -1305,6 +1305,10 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         }
         // Renders rows[i] for i in [0, n), in parallel, row y linked by link(y).
         auto renderSome = [&](const std::vector<int>& rows, auto&& link) {
+            // Each pass starts after the last one's tasks ended (their records are read now)
+            // and after the caller prepared this one's.
+            detail::tsanAcquire(&joinKey);
+            detail::tsanRelease(&forkKey);
             tbb::parallel_for(tbb::blocked_range<size_t>(0, rows.size(), 1),
                               [&](const tbb::blocked_range<size_t>& r) {
                                   detail::tsanAcquire(&forkKey);
