@@ -345,6 +345,7 @@ struct ThreadState {
     std::vector<uint32_t> involved;   // SpanShader::obstaclesNear's answer
     std::vector<uint8_t> paired;      // SpanShader::shadeRowPairRun: pixels the rows may pair
     std::vector<uint32_t> rowCandidates, rowBlockers;  // and its comparisons
+    std::vector<GWithDerivative> rowOpen;              // and its pixels' unoccluded G
     // Per pixel x of the span: the candidates that may shadow it, pixelObstacles[
     // pixelObstacleStart[x - x0] .. pixelObstacleStart[x - x0 + 1]) (in candidate order).
     std::vector<uint32_t> pixelObstacles;
@@ -752,6 +753,9 @@ private:
         mCheckMedia = false;
         std::vector<uint8_t>& paired = mTs.paired;
         paired.assign(size_t(x1 - x0 + 1), 0);
+        // The unoccluded G of the pixels that reach rule (c), kept for pairedStretch.
+        std::vector<GWithDerivative>& open = mTs.rowOpen;
+        open.resize(size_t(x1 - x0 + 1));
         std::vector<uint32_t>& mine = mTs.rowCandidates;
         std::vector<uint32_t>& theirs = mTs.rowBlockers;
         for (int x = x0; x <= x1; ++x) {
@@ -775,7 +779,8 @@ private:
                          std::back_inserter(theirs), notSelf);
             if (mine != theirs) continue;
             const Vec3 n = mTs.hits[size_t(x)].normal;
-            const double open = glm::dot(unoccludedG(mLight, receiver(x)).g, n);
+            const GWithDerivative& openG = open[size_t(x - x0)] = unoccludedG(mLight, receiver(x));
+            const double open = glm::dot(openG.g, n);
             const double bend = std::abs(glm::dot(cubicShadow(x) - lineShadow(x), n));
             paired[size_t(x - x0)] = bend <= kCheckedInterpolationTolerance * open;
         }
@@ -786,7 +791,7 @@ private:
             int end = x;
             while (end + 1 <= x1 && paired[size_t(end + 1 - x0)] == paired[size_t(x - x0)]) ++end;
             if (paired[size_t(x - x0)] && end - x + 1 >= kMinRowPairRun) {
-                pairedStretch(x, end);
+                pairedStretch(x, end, open.data() + (x - x0));
                 x = end + 1;
                 continue;
             }
@@ -815,7 +820,8 @@ private:
         return 0.5 * (mRows[1][size_t(x)].shadow + mRows[2][size_t(x)].shadow);
     }
 
-    void pairedStretch(int l, int r) {
+    // `open`: the unoccluded G of pixels l..r (shadeRowPairRun's).
+    void pairedStretch(int l, int r, const GWithDerivative* openAt) {
         const int m = (l + r) / 2;
         const Sample sm = checkedSample(m);
         auto agrees = [&](int x, const Sample& s) {
@@ -835,7 +841,7 @@ private:
         for (int i = l; i <= r; ++i) {
             if (i == m) continue;
             const Receiver rc = receiver(i);
-            const GWithDerivative open = unoccludedG(mLight, rc);
+            const GWithDerivative& open = openAt[i - l];
             double rowsBound = 0.0;
             Vec3 gradientShadow(0.0);
             for (size_t k = 0; k < 4; ++k) {
