@@ -69,6 +69,11 @@ conf="$tmp/slurm.conf"
 work="$tmp/work"
 export SLURM_CONF="$conf"
 cp "$bin" "$tmp/bin/penumbra"    # a copy: a rebuild during the check does not swap it mid-run
+# The image module (OpenImageIO, docs/architecture.md) goes with it: the program looks next to
+# itself.
+module="$(dirname "$bin")/penumbra_image_oiio.so"
+[ -f "$module" ] || fail "no image module at '$module' (build the repository's targets)"
+cp "$module" "$tmp/bin/"
 export PATH="$tmp/bin:$PATH"    # sbatch passes the environment on: the job finds `penumbra`
 
 # Daemons and job processes already running (another Slurm or munge): not ours, not touched.

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -10,6 +11,7 @@
 
 #include "penumbra/error.h"
 #include "penumbra/image_io.h"
+#include "support/cli.h"
 
 using namespace penumbra;
 namespace fs = std::filesystem;
@@ -156,4 +158,48 @@ TEST_CASE("heat map runs black, blue, red, yellow, white", "[image_io]") {
     }
     s.at(0, 0) = 0.5f;  // halfway between black and blue
     CHECK(heatMap(s, 4.0f).at(0, 0, 2) == Approx(0.5f));
+}
+
+TEST_CASE("the image module is loaded only to read or write an image, and its absence is one "
+          "clear error that leaves no file", "[image_io][cli]") {
+    test::TempDir dir("image_module", "image_io");
+    test::writeFile(dir.path / "scene.json", R"({
+  "camera": {"eye": [0, -6, 3], "look_at": [0, 0, 0.5], "up": [0, 0, 1], "fov_deg": 40,
+             "width": 8, "height": 8},
+  "lights": [{"corner": [-1, -1, 4], "edge_u": [0, 2, 0], "edge_v": [2, 0, 0],
+              "radiance": [10, 10, 10]}],
+  "obstacles": [{"type": "sphere", "center": [0, 0, 1], "radius": 0.5, "analytic": true}],
+  "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}]
+})");
+    test::writeFile(dir.path / "points.csv", "x,y,z,nx,ny,nz\n0,0,0,0,0,1\n");
+    const std::string missing = (dir.path / "nowhere" / "penumbra_image_oiio.so").string();
+    auto run = [&](const std::string& args) {
+        return test::runShell("cd '" + dir.path.string() + "' && PENUMBRA_IMAGE_MODULE='" +
+                                  missing + "' " + PENUMBRA_BINARY + " " + args,
+                              dir.path);
+    };
+    // Without the module, what needs no image still works...
+    CHECK(run("--version").exitCode == 0);
+    const test::Run probe = run("probe scene.json < points.csv");
+    CHECK(probe.exitCode == 0);
+    CHECK_THAT(probe.out, Catch::Contains("form_factor"));
+    // ... and a render fails on one line that says what is missing and where it looked, with no
+    // image (nor a temporary) left.
+    const test::Run render = run("render scene.json -o out.png -q");
+    CHECK(render.exitCode == 1);
+    CHECK_THAT(render.err, Catch::Contains("cannot write 'out.png': cannot load the image module "
+                                           "penumbra_image_oiio.so (OpenImageIO)"));
+    CHECK_THAT(render.err, Catch::Contains(missing + ": not found"));
+    CHECK(std::count(render.err.begin(), render.err.end(), '\n') == 1);
+    for (const auto& entry : fs::directory_iterator(dir.path)) {
+        const std::string name = entry.path().filename().string();
+        CHECK_THAT(name, !Catch::Contains("out"));
+    }
+    // With the module where the build put it (next to the program), the same render writes.
+    const test::Run ok = test::runShell(
+        "cd '" + dir.path.string() + "' && " + PENUMBRA_BINARY + " render scene.json -o out.png -q",
+        dir.path);
+    CHECK(ok.exitCode == 0);
+    CHECK(fs::exists(dir.path / "out.png"));
+    CHECK(readImage((dir.path / "out.png").string()).width == 8);
 }
