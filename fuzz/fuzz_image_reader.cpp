@@ -7,11 +7,23 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <stdexcept>
 #include <string>
 
 #include "penumbra/image_io.h"
+
+// Without the image module every input would be refused alike and nothing fuzzed: stop at once.
+extern "C" int LLVMFuzzerInitialize(int*, char***) {
+    try {
+        penumbra::requireImageModule();
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "fuzz_image_reader: %s\n", e.what());
+        std::abort();
+    }
+    return 0;
+}
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (size == 0) return 0;

@@ -742,6 +742,8 @@ bool outputVerified(const BatchJob& job, const std::string& hash, uint64_t& shad
         const FileDigest digest = digestFile(job.output);
         if (digest.bytes != size || digest.hash != content->get<std::string>()) return false;
         if (readImageAttribute(job.output, kHashAttribute) != hash) return false;
+    } catch (const ImageModuleError&) {
+        throw;  // no image can be checked (or written): not a stale output
     } catch (const std::exception&) {
         return false;
     }

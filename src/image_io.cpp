@@ -47,7 +47,11 @@ struct BackendLoader {
     // this code is in (the program, or the Python module), next to the running program, and
     // where the build put it.
     static std::vector<std::string> candidates() {
-        if (const char* env = std::getenv("PENUMBRA_IMAGE_MODULE"); env && *env) return {env};
+        if (const char* env = std::getenv("PENUMBRA_IMAGE_MODULE"); env && *env) {
+            // A bare name would pass access() here and then send dlopen to the library path.
+            const std::string named(env);
+            return {named.find('/') == std::string::npos ? "./" + named : named};
+        }
         std::vector<std::string> out;
         Dl_info info;
         // (An absolute name only: the program's own may come as typed, relative to nothing.)
@@ -79,8 +83,8 @@ struct BackendLoader {
             void* handle = ::dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
             if (!handle) {
                 const char* why = ::dlerror();
-                tried += (tried.empty() ? "" : "; ") +
-                         std::string(why ? why : path + ": not loaded");
+                tried += (tried.empty() ? "" : "; ") + path + ": " +
+                         std::string(why ? why : "not loaded");
                 continue;
             }
             using Entry = const detail::ImageBackend* (*)();
@@ -110,9 +114,24 @@ BackendLoader& loader() {
 const detail::ImageBackend& detail::imageBackend() {
     BackendLoader& l = loader();
     std::call_once(l.once, [&] { l.load(); });
-    if (!l.backend) throw std::runtime_error(l.error);
+    if (!l.backend) throw ImageModuleError(l.error);
     return *l.backend;
 }
+
+void requireImageModule() { detail::imageBackend(); }
+
+namespace {
+
+// The backend for reading `path`: a module that cannot be loaded names the file too.
+const detail::ImageBackend& backendToRead(const std::string& path) {
+    try {
+        return detail::imageBackend();
+    } catch (const ImageModuleError& e) {
+        throw ImageModuleError("cannot read '" + path + "': " + e.what());
+    }
+}
+
+}  // namespace
 
 float linearToSrgb(float linear) {
     float v = std::min(1.0f, std::max(0.0f, linear));
@@ -154,8 +173,9 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
     const detail::ImageBackend* backend = nullptr;
     try {
         backend = &detail::imageBackend();
-    } catch (const std::exception& e) {
-        fail(e.what());
+    } catch (const ImageModuleError& e) {
+        std::remove(tmp.c_str());
+        throw ImageModuleError("cannot write '" + path + "': " + e.what());
     }
     std::vector<unsigned char> bytes;
     if (format == ImageFormat::Png) {
@@ -174,7 +194,7 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
 }
 
 Image readImage(const std::string& path) {
-    Image image = detail::imageBackend().read(path);
+    Image image = backendToRead(path).read(path);
     if (lowerExtension(path) == ".png") {
         for (size_t i = 0; i < image.data.size(); ++i) {
             bool alpha = image.channels == 4 && i % 4 == 3;
@@ -185,7 +205,7 @@ Image readImage(const std::string& path) {
 }
 
 std::string readImageAttribute(const std::string& path, const std::string& name) {
-    return detail::imageBackend().attribute(path, name);
+    return backendToRead(path).attribute(path, name);
 }
 
 Image heatMap(const Image& scalar, float maxValue) {

@@ -202,4 +202,8 @@ TEST_CASE("the image module is loaded only to read or write an image, and its ab
     CHECK(ok.exitCode == 0);
     CHECK(fs::exists(dir.path / "out.png"));
     CHECK(readImage((dir.path / "out.png").string()).width == 8);
+    // Reading without the module is the installation's failure too (exit 1), naming the file.
+    const test::Run compare = run("compare out.png out.png");
+    CHECK(compare.exitCode == 1);
+    CHECK_THAT(compare.err, Catch::Contains("cannot read 'out.png': cannot load the image module"));
 }

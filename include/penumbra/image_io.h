@@ -14,6 +14,7 @@
 /// When it cannot be loaded, reads and writes throw std::runtime_error saying where it looked.
 #pragma once
 
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
@@ -52,6 +53,16 @@ ImageFormat imageFormatFor(const std::string& path, const std::string& flag = "-
 /// `path` then only picks the format and names the file in messages.
 void writeImage(const std::string& path, const Image& image, const ImageMetadata& metadata = {},
                 const std::string& flag = "-o", const std::string& stagedFile = "");
+
+/// The image module cannot be loaded (a broken installation, not bad input): what reads and
+/// writes throw then, "cannot read|write 'FILE': cannot load the image module ...".
+struct ImageModuleError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+/// Loads the image module now (it is loaded on the first read or write anyway), so that a run
+/// that will write images can fail before its work rather than after. Throws ImageModuleError.
+void requireImageModule();
 
 /// Reads an image as linear float values (PNG values are decoded from sRGB, alpha kept).
 /// Throws std::runtime_error when the file cannot be read.

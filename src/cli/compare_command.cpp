@@ -35,6 +35,8 @@ Image load(const std::string& path, const std::string& what) {
     Image image;
     try {
         image = readImage(path);
+    } catch (const ImageModuleError&) {
+        throw;  // the installation, not the image: a runtime failure
     } catch (const std::exception& e) {
         throw InputError(path, what, std::string("cannot read the image: ") + e.what());
     }

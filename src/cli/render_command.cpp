@@ -171,6 +171,13 @@ int runRender(const RenderOptions& o) {
         removeStaleTemporaries(dir.empty() ? "." : dir);
     }
 
+    // The image module, now rather than after the render (a broken installation).
+    try {
+        requireImageModule();
+    } catch (const ImageModuleError& e) {
+        throw ImageModuleError("cannot write '" + o.output + "': " + e.what());
+    }
+
     std::unique_ptr<LevelSetCache> cache;
     if (!o.cache.empty()) {
         cache = std::make_unique<LevelSetCache>(o.cache, [&](const std::string& text) {

@@ -24,10 +24,15 @@ std::vector<std::string> channelNames(int channels) {
     }
 }
 
+// What OpenImageIO said went wrong, never empty (an empty message would read as success).
+std::string orUnknown(std::string why) {
+    return why.empty() ? "OpenImageIO failed without saying why" : why;
+}
+
 std::string write(const std::string& path, const std::string& file, const Image& image,
                   const std::vector<unsigned char>& bytes, const ImageMetadata& metadata) {
     auto out = OIIO::ImageOutput::create(path);
-    if (!out) return OIIO::geterror();
+    if (!out) return orUnknown(OIIO::geterror());
     const bool png = !bytes.empty();
     OIIO::ImageSpec spec(image.width, image.height, image.channels,
                          png ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::FLOAT);
@@ -37,15 +42,15 @@ std::string write(const std::string& path, const std::string& file, const Image&
     spec.attribute("Software", "penumbra 0.1.0");
     for (const auto& [key, value] : metadata) spec.attribute(key, value);
 
-    if (!out->open(file, spec)) return out->geterror();
+    if (!out->open(file, spec)) return orUnknown(out->geterror());
     const bool ok = png ? out->write_image(OIIO::TypeDesc::UINT8, bytes.data())
                         : out->write_image(OIIO::TypeDesc::FLOAT, image.data.data());
     if (!ok) {
         std::string why = out->geterror();
         out->close();
-        return why;
+        return orUnknown(why);
     }
-    if (!out->close()) return out->geterror();
+    if (!out->close()) return orUnknown(out->geterror());
     return "";
 }
 

@@ -473,6 +473,8 @@ Image readImageFile(const std::string& path, const std::string& what) {
         return readImage(path);
     } catch (const InputError&) {
         throw;
+    } catch (const ImageModuleError&) {
+        throw;  // the installation, not the image
     } catch (const std::exception& e) {
         throw InputError(path, what, std::string("cannot read the image: ") + e.what());
     }
