@@ -37,7 +37,7 @@ struct ImageBackend {
 };
 
 /// The loaded backend (loaded on the first call; later calls wait for a load in progress).
-/// Throws std::runtime_error naming the module and why it could not be loaded.
+/// Throws ImageModuleError naming the module and why it could not be loaded.
 const ImageBackend& imageBackend();
 
 }  // namespace penumbra::detail

@@ -122,12 +122,13 @@ void requireImageModule() { detail::imageBackend(); }
 
 namespace {
 
-// The backend for reading `path`: a module that cannot be loaded names the file too.
-const detail::ImageBackend& backendToRead(const std::string& path) {
+// The backend to `verb` ("read", "write") `path` with: a module that cannot be loaded names the
+// file too.
+const detail::ImageBackend& backendFor(const char* verb, const std::string& path) {
     try {
         return detail::imageBackend();
     } catch (const ImageModuleError& e) {
-        throw ImageModuleError("cannot read '" + path + "': " + e.what());
+        throw ImageModuleError(std::string("cannot ") + verb + " '" + path + "': " + e.what());
     }
 }
 
@@ -172,10 +173,10 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
 
     const detail::ImageBackend* backend = nullptr;
     try {
-        backend = &detail::imageBackend();
-    } catch (const ImageModuleError& e) {
+        backend = &backendFor("write", path);
+    } catch (const ImageModuleError&) {
         std::remove(tmp.c_str());
-        throw ImageModuleError("cannot write '" + path + "': " + e.what());
+        throw;
     }
     std::vector<unsigned char> bytes;
     if (format == ImageFormat::Png) {
@@ -194,7 +195,7 @@ void writeImage(const std::string& path, const Image& image, const ImageMetadata
 }
 
 Image readImage(const std::string& path) {
-    Image image = backendToRead(path).read(path);
+    Image image = backendFor("read", path).read(path);
     if (lowerExtension(path) == ".png") {
         for (size_t i = 0; i < image.data.size(); ++i) {
             bool alpha = image.channels == 4 && i % 4 == 3;
@@ -205,7 +206,7 @@ Image readImage(const std::string& path) {
 }
 
 std::string readImageAttribute(const std::string& path, const std::string& name) {
-    return backendToRead(path).attribute(path, name);
+    return backendFor("read", path).attribute(path, name);
 }
 
 Image heatMap(const Image& scalar, float maxValue) {

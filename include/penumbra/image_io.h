@@ -11,7 +11,7 @@
 /// OpenImageIO lives in a module of its own, penumbra_image_oiio.so, loaded on the first read or
 /// write (its 250 or so libraries took 0.3-0.5 s of every run's start): from next to the program
 /// (or the Python module) that uses this library, or from PENUMBRA_IMAGE_MODULE when that is set.
-/// When it cannot be loaded, reads and writes throw std::runtime_error saying where it looked.
+/// When it cannot be loaded, reads and writes throw ImageModuleError saying where it looked.
 #pragma once
 
 #include <stdexcept>
