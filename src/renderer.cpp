@@ -18,7 +18,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/info.h>
-#include <tbb/parallel_for.h>
 #include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
@@ -1299,9 +1298,6 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
     tbb::enumerable_thread_specific<std::unique_ptr<ThreadState>> states;
     std::mutex progressMutex;
     int rowsDone = 0;
-    // TSan cannot see the fork and join inside the uninstrumented libtbb (thread_sanitizer.h).
-    const char forkKey = 0, joinKey = 0;
-    detail::tsanRelease(&forkKey);
     Context ctx = ctxTemplate;
     auto renderRows = [&] {
         if (mediaSeen) {
@@ -1311,24 +1307,21 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         }
         // Renders rows[i] for i in [0, n), in parallel, row y linked by link(y).
         auto renderSome = [&](const std::vector<int>& rows, auto&& link) {
-            // Each pass starts after the last one's tasks ended (their records are read now)
-            // and after the caller prepared this one's.
-            detail::tsanAcquire(&joinKey);
-            detail::tsanRelease(&forkKey);
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, rows.size(), 1),
-                              [&](const tbb::blocked_range<size_t>& r) {
-                                  detail::tsanAcquire(&forkKey);
-                                  auto& state = states.local();
-                                  if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
-                                  for (size_t i = r.begin(); i < r.end(); ++i) {
-                                      renderRow(ctx, *state, rows[i], link(rows[i]));
-                                      if (progress) {
-                                          std::lock_guard<std::mutex> lock(progressMutex);
-                                          progress(++rowsDone, height);
-                                      }
-                                  }
-                                  detail::tsanRelease(&joinKey);
-                              });
+            // parallelFor states the fork and the join to TSan: the tasks see this pass's
+            // inputs, and the caller (which frees `rows` and reads the records next) sees
+            // everything the tasks wrote.
+            detail::parallelFor(tbb::blocked_range<size_t>(0, rows.size(), 1),
+                                [&](const tbb::blocked_range<size_t>& r) {
+                                    auto& state = states.local();
+                                    if (!state) state = std::make_unique<ThreadState>(occluder, settings.aci);
+                                    for (size_t i = r.begin(); i < r.end(); ++i) {
+                                        renderRow(ctx, *state, rows[i], link(rows[i]));
+                                        if (progress) {
+                                            std::lock_guard<std::mutex> lock(progressMutex);
+                                            progress(++rowsDone, height);
+                                        }
+                                    }
+                                });
         };
         if (!rowPairs) {
             std::vector<int> all(static_cast<size_t>(height));
@@ -1390,10 +1383,18 @@ RenderResult render(const Scene& scene, const RenderSettings& settingsIn,
         tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                                   std::max<size_t>(threads, tbb::global_control::active_value(
                                                                 tbb::global_control::max_allowed_parallelism)));
+        // The arena may run renderRows on another thread: TSan cannot see that hand-over
+        // inside the uninstrumented libtbb (thread_sanitizer.h), so it is stated.
+        const char forkKey = 0, joinKey = 0;
+        detail::tsanRelease(&forkKey);
         tbb::task_arena arena(threads);
-        arena.execute(renderRows);
+        arena.execute([&] {
+            detail::tsanAcquire(&forkKey);
+            renderRows();
+            detail::tsanRelease(&joinKey);
+        });
+        detail::tsanAcquire(&joinKey);
     }
-    detail::tsanAcquire(&joinKey);
 
     RenderStats& stats = result.stats;
     for (const auto& state : states) {

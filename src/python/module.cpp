@@ -11,7 +11,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/global_control.h>
-#include <tbb/parallel_for.h>
+#include "../parallel_for.h"
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -409,7 +409,7 @@ py::dict probe(const PyScene& self, py::handle pointsIn, py::handle normalsIn, p
         {
             py::gil_scoped_release release;
             runInArena(arena, [&] {
-                tbb::parallel_for(tbb::blocked_range<size_t>(begin, end, 16), evaluate);
+                detail::parallelFor(tbb::blocked_range<size_t>(begin, end, 16), evaluate);
             });
         }
         if (PyErr_CheckSignals() != 0) throw py::error_already_set();
