@@ -15,14 +15,24 @@
 
 namespace penumbra::detail {
 
-/// Raised when the table's layout changes, so that a stale module is refused by name.
+/// Raised when the table's meaning changes, so that a stale module is refused by name.
 constexpr int kImageBackendVersion = 1;
+
+/// The sizes of what crosses the table, as this side was compiled: a module built against
+/// another layout of these types (a copied program finding an older build tree's module, or
+/// another compiler's standard library) is refused even if nobody raised the version.
+constexpr unsigned long long kImageBackendLayout =
+    sizeof(Image) | (sizeof(ImageMetadata) << 12) | (sizeof(std::string) << 24) |
+    (sizeof(std::vector<float>) << 32) | (sizeof(std::vector<unsigned char>) << 40) |
+    (static_cast<unsigned long long>(sizeof(void*)) << 52);
 
 /// The module's file name, looked for next to the program or library that loads it.
 constexpr const char* kImageModuleName = "penumbra_image_oiio.so";
 
 struct ImageBackend {
     int version;
+    /// kImageBackendLayout as the module was compiled.
+    unsigned long long layout;
     /// Writes `image` to `file` in the format of `path`'s extension (`path` names the image in
     /// the file's own metadata and messages): a PNG from `bytes` (8-bit values, already
     /// encoded), an EXR from the image's floats. Returns "" when written, else why not (`file`

@@ -90,7 +90,8 @@ struct BackendLoader {
             using Entry = const detail::ImageBackend* (*)();
             const auto entry = reinterpret_cast<Entry>(::dlsym(handle, "penumbra_image_backend"));
             const detail::ImageBackend* b = entry ? entry() : nullptr;
-            if (!b || b->version != detail::kImageBackendVersion) {
+            if (!b || b->version != detail::kImageBackendVersion ||
+                b->layout != detail::kImageBackendLayout) {
                 tried += (tried.empty() ? "" : "; ") + path +
                          ": not this build's image module (rebuild penumbra)";
                 continue;

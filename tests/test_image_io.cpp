@@ -206,4 +206,14 @@ TEST_CASE("the image module is loaded only to read or write an image, and its ab
     const test::Run compare = run("compare out.png out.png");
     CHECK(compare.exitCode == 1);
     CHECK_THAT(compare.err, Catch::Contains("cannot read 'out.png': cannot load the image module"));
+    // A module built against another layout of the table's types is refused by name, not called.
+    const test::Run stale = test::runShell("cd '" + dir.path.string() +
+                                               "' && PENUMBRA_IMAGE_MODULE='" +
+                                               PENUMBRA_STALE_IMAGE_MODULE + "' " +
+                                               PENUMBRA_BINARY + " render scene.json -o new.png -q",
+                                           dir.path);
+    CHECK(stale.exitCode == 1);
+    CHECK_THAT(stale.err, Catch::Contains(std::string(PENUMBRA_STALE_IMAGE_MODULE) +
+                                          ": not this build's image module"));
+    CHECK_FALSE(fs::exists(dir.path / "new.png"));
 }

@@ -95,7 +95,8 @@ std::string attribute(const std::string& path, const std::string& name) {
     return value;
 }
 
-const penumbra::detail::ImageBackend kBackend{penumbra::detail::kImageBackendVersion, &write,
+const penumbra::detail::ImageBackend kBackend{penumbra::detail::kImageBackendVersion,
+                                              penumbra::detail::kImageBackendLayout, &write,
                                               &read, &attribute};
 
 }  // namespace
