@@ -15,6 +15,7 @@
 #include "cell_distance.h"
 #include "level_set_impl.h"
 #include "level_set_search.h"
+#include "parallel_for.h"
 
 namespace penumbra {
 
@@ -366,11 +367,23 @@ void Occluder::addMedium(Medium medium) {
 Occluder::Query Occluder::makeQuery() const { return Query(*this); }
 
 void Occluder::prepareClearance() const {
+    // Every level set's two builds side by side: its companion (then the companion's error,
+    // measured on one thread) and its cell tables, which need only the fine grid. One after the
+    // other they kept a second core mostly idle (OpenVDB's meshing and the error's measurement
+    // run largely on one thread); each build isolates its own parallel loops.
+    std::vector<const FarField*> fars;
     for (const auto& far : mFar)
-        if (far) {
-            far->error();  // builds the companion too
-            far->cells();
-        }
+        if (far) fars.push_back(far.get());
+    detail::parallelFor(tbb::blocked_range<size_t>(0, 2 * fars.size(), 1),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                            for (size_t i = r.begin(); i < r.end(); ++i) {
+                                if (i % 2 == 0) {
+                                    fars[i / 2]->error();  // builds the companion too
+                                } else {
+                                    fars[i / 2]->cells();
+                                }
+                            }
+                        });
 }
 
 // ---------------------------------------------------------------------------------------------
