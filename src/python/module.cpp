@@ -11,7 +11,6 @@
 #include <tbb/blocked_range.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/global_control.h>
-#include "../parallel_for.h"
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -27,6 +26,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../parallel_for.h"
 #include "penumbra/compare.h"
 #include "penumbra/contour_integrator.h"
 #include "penumbra/error.h"
