@@ -66,6 +66,22 @@ const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
         tbb::this_task_arena::isolate([&] {
             const openvdb::math::Transform::Ptr xform = mGrid->transform().copy();
             xform->preScale(factor);
+            FarFieldRecipe recipe;
+            {
+                std::lock_guard<std::mutex> lock(mFar->recipeMutex);
+                recipe = mFar->recipe;
+            }
+            if (recipe) {
+                // The shape's distance sampled on the coarse lattice: a sphere's companion in
+                // 0.01 s instead of the 0.33 s of meshing the default scene's (the fine grid
+                // on a lattice of its own, as buildLevelSet makes them, has no offset).
+                openvdb::FloatGrid::Ptr far = recipe(mVoxelSize * factor, band);
+                if (far && far->transform() == *xform) {
+                    far->setGridClass(openvdb::GRID_LEVEL_SET);
+                    mFar->grid = far;
+                    return;
+                }
+            }
             // The fine surface meshed with a little adaptivity (0.005: flat stretches merged
             // into larger polygons), then turned into the coarse level set: the closest-point
             // searches of that second step, most of the build, see far fewer polygons (the
@@ -88,6 +104,11 @@ const openvdb::FloatGrid& LevelSet::farField(double factor, float band) const {
         mFar->built.store(true, std::memory_order_release);
     });
     return *mFar->grid;
+}
+
+void LevelSet::setFarFieldRecipe(FarFieldRecipe recipe) const {
+    std::lock_guard<std::mutex> lock(mFar->recipeMutex);
+    mFar->recipe = std::move(recipe);
 }
 
 void LevelSet::adoptFarField(openvdb::FloatGrid::ConstPtr grid) const {
@@ -683,7 +704,8 @@ void writeLevelSets(const std::string& file, const std::vector<LevelSetPtr>& gri
 namespace {
 
 constexpr const char* kCacheFormat = "penumbra-level-set-cache";
-constexpr int kCacheVersion = 1;
+// 2: a primitive's companion is its own distance sampled (LevelSet::setFarFieldRecipe).
+constexpr int kCacheVersion = 2;
 
 // Grids in a cache file are named by position ("ls_0", "ls_0_far", ...); what they were called
 // travels in their metadata.

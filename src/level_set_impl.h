@@ -12,6 +12,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
@@ -64,6 +65,16 @@ class LevelSet {
     /// Takes a companion built elsewhere (a cache file) unless one exists already.
     void adoptFarField(openvdb::FloatGrid::ConstPtr grid) const;
 
+    /// Builds the companion from the shape's own signed distance instead of meshing the fine
+    /// surface: given the companion's voxel size (world units) and half width (its voxels), a
+    /// level set on the lattice of that voxel size (no offset, no rotation). Set by the builder
+    /// of a lone smooth primitive (useShapeDistanceForFarField), whose distance is exact and
+    /// 1-Lipschitz; CompanionError measures how far it strays from the fine grid as it does for
+    /// a meshed one.
+    using FarFieldRecipe = std::function<openvdb::FloatGrid::Ptr(double voxel, float band)>;
+    /// Takes effect if the companion has not been built yet; safe from any thread.
+    void setFarFieldRecipe(FarFieldRecipe recipe) const;
+
     /// The cell tables of the grid (cell_distance.h): built on first use (thread-safe) and
     /// kept with the level set, so that every Occluder, render and batch job over it shares
     /// them. Null for a grid too large for them or not a level set.
@@ -80,6 +91,8 @@ class LevelSet {
         std::once_flag once;
         openvdb::FloatGrid::ConstPtr grid;
         std::atomic<bool> built{false};
+        std::mutex recipeMutex;
+        FarFieldRecipe recipe;  // guarded by recipeMutex
     };
     std::shared_ptr<FarCache> mFar = std::make_shared<FarCache>();
     struct CellCache {

@@ -269,6 +269,8 @@ class LevelSetBuild {
     void built() { mBuilt = true; }
     /// Since the build began (before the cache was asked).
     double seconds() const { return secondsSince(mStart); }
+    /// The index in the target's obstacles of the first this plan added.
+    size_t first() const { return mFirst; }
 
   private:
     const ObstaclePlan& mPlan;
@@ -297,7 +299,13 @@ void buildImplicit(const ObstaclePlan& plan, ImplicitPlan& implicit, const Build
                    LevelSetCache* cache) {
     const std::string name = nameOf(plan);
     LevelSetBuild build(plan, to, cache);
-    if (build.takeShared()) return;
+    if (build.takeShared()) {
+        // A cache file's level set of a primitive builds its companion as a fresh one would.
+        for (size_t i = build.first(); i < to.obstacles.size(); ++i)
+            if (const auto* ls = std::get_if<LevelSetPtr>(&to.obstacles[i].shape))
+                useShapeDistanceForFarField(*ls, implicit.node);
+        return;
+    }
     readTreeGrids(implicit.node, plan.pointer, to.file);
     ShapeBuildNotes notes;
     LevelSetPtr ls;

@@ -54,6 +54,11 @@ struct ObstaclePlan {
     std::string cacheKey;
 };
 
+/// When `root` is a lone smooth primitive (sphere, torus, capsule), lets `levelSet` (built from
+/// it, or read back from a cache for it) build its far-field companion from the primitive's own
+/// distance (LevelSet::setFarFieldRecipe); does nothing otherwise. buildLevelSet calls it itself.
+void useShapeDistanceForFarField(const LevelSetPtr& levelSet, const ShapeNode& root);
+
 /// The default limit on the memory of the level sets to build: 16 GiB, or three quarters of
 /// the machine's memory when that is less.
 double defaultMemoryLimitBytes();

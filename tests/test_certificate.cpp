@@ -606,6 +606,69 @@ TEST_CASE("certificates of level-set spheres, boxes and a torus hold", "[certifi
     }
 }
 
+TEST_CASE("certificates of primitives whose companion is their own distance hold",
+          "[certificate]") {
+    // buildLevelSet gives a lone smooth primitive a companion sampled from its exact distance
+    // (LevelSet::setFarFieldRecipe) instead of one meshed from the fine surface; the
+    // certificates subtract how far it strays from the fine grid all the same.
+    RunOptions opt;
+    opt.ratios = true;
+    opt.segments = 500;
+    auto run = [&](const std::string& name, const ShapeKind& kind, const Similarity& t,
+                   const Sdf& sdf, double voxel, uint64_t seed) {
+        opt.seed = seed;
+        const Scene s{name, {Obstacle{buildLevelSet(ShapeNode{kind, t}, voxel, 3.0, "built"), sdf,
+                                      name}},
+                      voxel};
+        const Outcome o = runScene(s, opt);
+        checkOutcome(s.name, o);
+        CHECK(o.uncappedClear.size() > 30);
+        CHECK(quantile(o.ratiosClear, 1.0) <= 1.05);
+        CHECK(quantile(o.ratiosBlocked, 1.0) <= 1.05);
+    };
+    SECTION("sphere, voxel 0.02") {
+        SphereShape sphere;
+        sphere.center = Vec3(0.1, -0.2, 0.3);
+        sphere.radius = 0.45;
+        run("built sphere v0.02", sphere, Similarity{}, [](const Vec3& p) {
+            return sphereSdf(Vec3(0.1, -0.2, 0.3), 0.45, p);
+        }, 0.02, 211);
+    }
+    SECTION("sphere scaled 2x and moved, voxel 0.01") {
+        SphereShape sphere;
+        sphere.center = Vec3(0.05, 0.0, -0.05);
+        sphere.radius = 0.15;
+        Similarity t;
+        t.scale = 2.0;
+        t.translate = Vec3(0.05, -0.1, 0.0);
+        // World centre 2 (0.05, 0, -0.05) + (0.05, -0.1, 0), radius 0.3.
+        run("built sphere scaled v0.01", sphere, t, [](const Vec3& p) {
+            return sphereSdf(Vec3(0.15, -0.1, -0.1), 0.3, p);
+        }, 0.01, 212);
+    }
+    SECTION("capsule, voxel 0.01") {
+        CapsuleShape c;
+        c.a = Vec3(-0.3, -0.1, -0.2);
+        c.b = Vec3(0.25, 0.2, 0.3);
+        c.radius = 0.15;
+        run("built capsule v0.01", c, Similarity{}, [c](const Vec3& p) {
+            const Vec3 pa = p - c.a, ba = c.b - c.a;
+            const double h = std::clamp(glm::dot(pa, ba) / glm::dot(ba, ba), 0.0, 1.0);
+            return glm::length(pa - h * ba) - c.radius;
+        }, 0.01, 213);
+    }
+    SECTION("torus two and a half voxels thick, voxel 0.01") {
+        TorusShape r;
+        r.center = Vec3(0.0, 0.1, -0.05);
+        r.axis = glm::normalize(Vec3(0.4, -0.3, 1.0));
+        r.majorRadius = 0.2;
+        r.minorRadius = 0.025;
+        run("built thin torus v0.01", r, Similarity{}, [r](const Vec3& p) {
+            return torusSdf(r.center, r.axis, r.majorRadius, r.minorRadius, p);
+        }, 0.01, 214);
+    }
+}
+
 TEST_CASE("certificates next to features thinner than the far-field companion's voxels hold",
           "[certificate]") {
     // The companion (4x coarser voxels) loses a plate 3 fine voxels thick, a tube of radius 2

@@ -95,16 +95,42 @@ TEST_CASE("bake then load gives the same probe values", "[cli][bake][scenes]") {
     }
 
     // The same sensor points through `penumbra probe`, on the scene and on the baked file: the
-    // same voxels give the same answers, to the last digit printed.
+    // same voxels give answers within the error bounds both report. (Not to the last digit: the
+    // scene's sphere builds its far-field companion from its own distance, the baked grid, which
+    // carries no shape, by meshing; other certificates, so other coverage rays.)
     std::ofstream(dir / "baked.json")
         << std::string(R"({"lights": [)") + kLight +
                R"(], "obstacles": [{"type": "vdb", "file": "baked.vdb"}]})";
-    const Run a = runPenumbra("probe " + (dir / "scene.json").string(), dir, sensors());
-    const Run b = runPenumbra("probe " + (dir / "baked.json").string(), dir, sensors());
+    const Run a = runPenumbra("probe --error-bound " + (dir / "scene.json").string(), dir, sensors());
+    const Run b = runPenumbra("probe --error-bound " + (dir / "baked.json").string(), dir, sensors());
     REQUIRE(a.exitCode == 0);
     REQUIRE(b.exitCode == 0);
     CHECK(std::count(a.out.begin(), a.out.end(), '\n') == 41);
-    CHECK(a.out == b.out);
+    auto rows = [](const std::string& csv) {
+        std::vector<std::vector<double>> out;
+        std::istringstream in(csv);
+        std::string line;
+        std::getline(in, line);  // header
+        while (std::getline(in, line)) {
+            std::vector<double> row;
+            std::istringstream cells(line);
+            std::string cell;
+            while (std::getline(cells, cell, ',')) row.push_back(std::stod(cell));
+            out.push_back(row);
+        }
+        return out;
+    };
+    CHECK(a.out.substr(0, a.out.find('\n')) ==
+          "x,y,z,form_factor,dF_dx,dF_dy,dF_dz,shadow_rays,error_bound");
+    const auto ra = rows(a.out), rb = rows(b.out);
+    REQUIRE(ra.size() == rb.size());
+    for (size_t i = 0; i < ra.size(); ++i) {
+        REQUIRE(ra[i].size() == 9);
+        REQUIRE(rb[i].size() == 9);
+        CAPTURE(i, ra[i][3], rb[i][3], ra[i][8], rb[i][8]);
+        CHECK(ra[i][0] == rb[i][0]);
+        CHECK(std::abs(ra[i][3] - rb[i][3]) <= ra[i][8] + rb[i][8] + 1e-9);
+    }
     // ... and not because nothing was in the way: some points are shadowed.
     const Scene baked = loadScene((dir / "baked.json").string());
     const Occluder occ = baked.makeOccluder();

@@ -210,3 +210,35 @@ TEST_CASE("batch --status reports done, failed and missing jobs across shards",
     // --status runs nothing and takes no other run options.
     CHECK(penumbraIn(tmp.path, "batch m.json --status --resume").exitCode == 2);
 }
+
+TEST_CASE("a primitive's companion is its own distance, built alike fresh or from a cache file",
+          "[cache]") {
+    const TempDir tmp("ls_cache_recipe");
+    const fs::path dir = tmp.path / "cache";
+    const std::string text = torusScene(0.03);
+
+    // First load: built; the cache files hold the fine grids only (no persist()).
+    LevelSetCache first(dir.string());
+    const Scene a = parseScene(text, "a.json", tmp.path.string(), &first);
+    a.makeOccluder().prepareClearance();
+    // The sphere's companion: its exact distance at every active voxel (meshing the fine
+    // surface would stray from it by about a tenth of a fine voxel).
+    const openvdb::FloatGrid& far = *levelSetOf(a, 1).farFieldIfBuilt();
+    REQUIRE(far.activeVoxelCount() > 1000);
+    double worst = 0.0;
+    for (auto it = far.cbeginValueOn(); it; ++it) {
+        const openvdb::Vec3d p = far.indexToWorld(it.getCoord());
+        const double exact = (p - openvdb::Vec3d(0.6, 0.2, 1.0)).length() - 0.2;
+        worst = std::max(worst, std::abs(double(*it) - exact));
+    }
+    CHECK(worst < 1e-5);
+
+    // Second load reads the fine grids back without companions and builds the same ones.
+    LevelSetCache second(dir.string());
+    const Scene b = parseScene(text, "a.json", tmp.path.string(), &second);
+    REQUIRE(b.build.levelSetsFromCache == 2);
+    CHECK(!hasFarField(levelSetOf(b, 0)));
+    b.makeOccluder().prepareClearance();
+    for (size_t i = 0; i < 2; ++i)
+        CHECK(sameGrid(*levelSetOf(a, i).farFieldIfBuilt(), *levelSetOf(b, i).farFieldIfBuilt()));
+}
