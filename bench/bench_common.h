@@ -63,11 +63,20 @@ struct Option {
 
 /// Reads argv against `options`. A word that is no option goes to `positional` if there is one
 /// and the word does not start with '-'. Errors, as failUsage: "OPTION needs a value",
-/// "unknown option WORD".
+/// "unknown option WORD". -h or --help prints the options and exits with 0.
 inline void parseOptions(const char* program, int argc, char** argv,
                          const std::vector<Option>& options, std::string* positional = nullptr) {
     for (int i = 1; i < argc; ++i) {
         const std::string word = argv[i];
+        if (word == "-h" || word == "--help") {
+            std::printf("usage: %s", program);
+            for (const Option& o : options)
+                std::printf(" [%s%s]", o.name.c_str(), o.flag ? "" : " VALUE");
+            if (positional) std::printf(" [ARG]");
+            std::printf("\n(what each does and its default: the comment at the top of bench/%s.cpp)\n",
+                        program);
+            std::exit(0);
+        }
         const auto option = std::find_if(options.begin(), options.end(),
                                          [&](const Option& o) { return o.name == word; });
         if (option == options.end()) {
