@@ -10,8 +10,11 @@
 // point and normal). A check, not a timing: never fails on a figure, prints what it found.
 //
 //   bench_bounds [--seeds N] [--first-seed S] [--size 200] [--stride 4] [--samples 4096]
-//                [--confirm 1048576] [--threads 2] [--steps 5] [--out DIR]
+//                [--confirm 1048576] [--threads 2] [--steps 5] [--out DIR] [--lights rect]
 //
+// --lights rect|mixed: the scenes' lights (bench/random_scenes.h, LightShapes): rect, the
+// rectangles of every figure before 2026-12-05; mixed, a seed's light made a rectangle, disc,
+// triangle or convex 5- to 7-gon on the same frame, the rest of the scene unchanged.
 // --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
@@ -49,6 +52,7 @@ struct Args {
     int threads = 2;
     int steps = 5;  // AciSettings' (probe's) default
     std::string out = "/tmp/penumbra_bounds";
+    std::string lights = "rect";
 };
 
 // A receiver point seen through a pixel: the nearest receiver plane, or the obstacle that a
@@ -115,7 +119,8 @@ int main(int argc, char** argv) {
                              {"--confirm", &a.confirm},
                              {"--threads", &a.threads},
                              {"--steps", &a.steps},
-                             {"--out", &a.out}});
+                             {"--out", &a.out},
+                             {"--lights", &a.lights}});
         if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
             a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
@@ -131,7 +136,7 @@ int main(int argc, char** argv) {
         for (int i = 0; i < a.seeds; ++i) {
             const int seed = a.firstSeed + i;
             const auto start = std::chrono::steady_clock::now();
-            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed));
+            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed), randomscenes::parseLightShapes(a.lights));
             const std::string path = a.out + "/seed_" + std::to_string(seed) + ".json";
             std::ofstream(path) << g.json;
             const Scene scene = parseScene(g.json, path, a.out);
@@ -195,6 +200,8 @@ int main(int argc, char** argv) {
             std::printf("seed %-3d %7d %9d %10d %9.1f %11.3f%% %14.2f %8.1f\n", seed, points,
                         shadowed, violations, points ? double(rays) / points : 0.0, 100.0 * maxErr,
                         maxRatio, seconds);
+            if (a.lights != "rect")
+                std::printf("  %s\n", g.description.substr(0, g.description.find(';')).c_str());
             for (size_t k = 0; k < results.size(); ++k) {
                 const PointResult& p = results[k];
                 if (!p.violation) continue;

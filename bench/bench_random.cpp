@@ -9,7 +9,7 @@
 //                [--gallery-size 200[,800] | --gallery-size 0] [--gallery-dir DIR]
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
-//                [--adjudicate-samples 1048576]
+//                [--adjudicate-samples 1048576] [--lights rect|mixed]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -19,7 +19,9 @@
 // time (.exr), ACI's picture (.png) and its error map on the compared pixels (.png; black 0,
 // blue 2, red 4, yellow 6, white 8 or more units). --adjudicate-samples N (default 2^20; 0:
 // off) judges ACI's compared pixels over 6 units again, against two N-ray references of each
-// pixel alone (below).
+// pixel alone (below). --lights mixed gives each seed's scene a rectangle, disc, triangle or
+// convex 5- to 7-gon light on the rectangle's frame (bench/random_scenes.h, LightShapes; the
+// default, rect, is every figure's before 2026-12-05).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -145,6 +147,7 @@ struct Args {
     std::string galleryDir;
     std::vector<std::string> gallery{"default", "table1"};  // scene stems in galleryDir
     bool saveImages = false;
+    LightShapes lights = LightShapes::Rect;
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
     int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
 };
@@ -216,6 +219,7 @@ Args parseArgs(int argc, char** argv) {
                 if (!stem.empty()) a.gallery.push_back(stem);
         }
         else if (s == "--save-images") a.saveImages = true;
+        else if (s == "--lights") a.lights = parseLightShapes(next());
         else if (s == "--adjudicate-samples") a.adjudicateSamples = int(parseInt(s, next()));
         else if (s == "--help" || s == "-h") usage("seeded random scenes: ACI against Monte Carlo");
         else usage("unknown option " + s);
@@ -925,7 +929,7 @@ int main(int argc, char** argv) {
 
         for (int i = 0; i < args.seeds; ++i) {
             const uint64_t seed = args.firstSeed + uint64_t(i);
-            const Generated g = generateScene(seed);
+            const Generated g = generateScene(seed, args.lights);
             const std::string path = args.out + "/seed_" + std::to_string(seed) + ".json";
             {
                 std::ofstream f(path);

@@ -49,6 +49,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -171,6 +172,24 @@ struct Generated {
     std::string description;
 };
 
+// Which lights a scene gets. Rect: the rectangle drawn above (every figure before 2026-12-05).
+// Mixed: the same draws, then a second stream (seeded from the seed alone) picks the light's
+// shape among the rectangle, a disc, a triangle and a convex polygon of 5 to 7 vertices, the
+// last three inscribed in the ellipse of semi-axes a/2 and b/2 on the rectangle's edges (same
+// centre, plane and emitting side; the disc's radius sqrt(a b) / 2), their vertices at sorted
+// uniform angles at least 20 degrees apart (redrawn until no gap reaches 180 degrees, so the
+// centre is inside). The radiance is rescaled by the rectangle's area over the shape's, so the
+// ground under the light still reads about 0.65. Obstacles, camera and voxel are the rect
+// scene's: a seed's mixed scene differs from its rect scene in the light alone.
+enum class LightShapes { Rect, Mixed };
+
+inline LightShapes parseLightShapes(const std::string& s) {
+    if (s == "rect") return LightShapes::Rect;
+    if (s == "mixed") return LightShapes::Mixed;
+    std::fprintf(stderr, "--lights: '%s' is not rect or mixed\n", s.c_str());
+    std::exit(2);
+}
+
 // Draws the obstacle's dimensions for overall size D.
 inline void drawDimensions(GenObstacle& o, double D, double voxel, Rng& rng) {
     const double minR = o.analytic ? 1e-3 : 2.0 * voxel;   // radii
@@ -213,7 +232,7 @@ inline void drawDimensions(GenObstacle& o, double D, double voxel, Rng& rng) {
     o.extent = 2.0 * o.boundingRadius();
 }
 
-inline Generated generateScene(uint64_t seed) {
+inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::Rect) {
     Rng rng(seed);
     const double voxel = std::round(rng.uniform(0.01, 0.02) * 10000.0) / 10000.0;
 
@@ -340,17 +359,67 @@ inline Generated generateScene(uint64_t seed) {
     js << "// bench_random seed " << seed << " (bench/bench_random.cpp documents the generator)\n";
     js << "{\n  \"camera\": {\"eye\": " << vec(eye) << ", \"look_at\": " << vec(lookAt)
        << ", \"up\": [0, 0, 1], \"fov_deg\": " << num(fov) << ", \"width\": 800, \"height\": 800},\n";
-    js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(corner)
-       << ",\n     \"edge_u\": " << vecExact(edgeU) << ",\n     \"edge_v\": " << vecExact(edgeV)
-       << ",\n     \"radiance\": "
-       << vec(Vec3(radiance)) << "}\n  ],\n";
+    std::string lightShape = "rect";
+    if (shapes == LightShapes::Rect) {
+        js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(corner)
+           << ",\n     \"edge_u\": " << vecExact(edgeU) << ",\n     \"edge_v\": " << vecExact(edgeV)
+           << ",\n     \"radiance\": "
+           << vec(Vec3(radiance)) << "}\n  ],\n";
+    } else {
+        Rng lrng(seed ^ 0xA5A5F00DCAFEBEEFull);
+        const int pick = lrng.below(4);
+        auto rescaled = [&](double area) {
+            return std::round(radiance * a * b / area * 1000.0) / 1000.0;
+        };
+        if (pick == 0) {
+            js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(corner)
+               << ",\n     \"edge_u\": " << vecExact(edgeU) << ",\n     \"edge_v\": "
+               << vecExact(edgeV) << ",\n     \"radiance\": " << vec(Vec3(radiance))
+               << "}\n  ],\n";
+        } else if (pick == 1) {
+            const double r = 0.5 * std::sqrt(a * b);
+            lightShape = "disc";
+            js << "  \"lights\": [\n    {\"name\": \"key\", \"type\": \"disc\", \"center\": "
+               << vecExact(lightCenter) << ",\n     \"normal\": " << vecExact(n)
+               << ", \"radius\": " << num(r) << ",\n     \"radiance\": "
+               << vec(Vec3(rescaled(kPi * r * r))) << "}\n  ],\n";
+        } else {
+            const int k = pick == 2 ? 3 : 5 + lrng.below(3);
+            std::vector<double> angles;
+            for (int tries = 0; tries < 10000; ++tries) {
+                angles.clear();
+                for (int i = 0; i < k; ++i) angles.push_back(lrng.uniform(0.0, 2.0 * kPi));
+                std::sort(angles.begin(), angles.end());
+                bool ok = true;
+                for (int i = 0; i < k; ++i) {
+                    const double gap = i + 1 < k ? angles[i + 1] - angles[i]
+                                                 : angles[0] + 2.0 * kPi - angles[i];
+                    ok &= gap >= rad(20.0) && gap < kPi;
+                }
+                if (ok) break;
+            }
+            std::vector<Vec3> vs;
+            for (double t : angles) {
+                vs.push_back(lightCenter + 0.5 * a * std::cos(t) * e1 + 0.5 * b * std::sin(t) * e2);
+            }
+            double area = 0.0;
+            for (int i = 0; i < k; ++i) {
+                area += 0.5 * glm::dot(glm::cross(vs[i] - lightCenter, vs[(i + 1) % k] - lightCenter), n);
+            }
+            lightShape = k == 3 ? "triangle" : std::to_string(k) + "-gon";
+            js << "  \"lights\": [\n    {\"name\": \"key\", \"type\": \"polygon\", \"vertices\": [";
+            for (int i = 0; i < k; ++i) js << (i ? ",\n       " : "") << vecExact(vs[i]);
+            js << "],\n     \"radiance\": " << vec(Vec3(rescaled(area))) << "}\n  ],\n";
+        }
+    }
     js << "  \"obstacles\": [\n";
     std::ostringstream desc;
     char line[256];
     std::snprintf(line, sizeof line,
-                  "light %.2f x %.2f at height %.2f, tilt %.1f deg, spin %.1f deg, radiance %.3g; "
+                  "light %s%.2f x %.2f at height %.2f, tilt %.1f deg, spin %.1f deg, radiance %.3g; "
                   "voxel %.4f; %zu obstacles:",
-                  a, b, h, deg(tilt), deg(spin), radiance, voxel, obstacles.size());
+                  lightShape == "rect" ? "" : (lightShape + " in ").c_str(), a, b, h, deg(tilt),
+                  deg(spin), radiance, voxel, obstacles.size());
     desc << line;
     for (size_t i = 0; i < obstacles.size(); ++i) {
         const GenObstacle& o = obstacles[i];
