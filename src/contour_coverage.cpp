@@ -34,7 +34,7 @@ bool ContourIntegrator::Lattice::wholeLight() {
     wantWhole = false;
     if (peek(centre) == kBelowHorizon) return false;  // the frame's centre emits nothing
     const Certificate& cert = scratch.mCert[index(centre)];
-    if (light.shape == LightShape::Disc) {
+    if (light.shape == LightShape::Disc && !isDiscPiece(light)) {
         // The frame's centre is the disc's: its radius covers it.
         if (!(light.radius < cert.radius)) return false;
     } else {
@@ -47,7 +47,15 @@ bool ContourIntegrator::Lattice::wholeLight() {
 
 // Integrates the whole light (every point of it visible).
 void ContourIntegrator::Lattice::emitWhole() {
-    if (light.shape == LightShape::Disc) {
+    if (isDiscPiece(light)) {
+        // A segment of a disc (discPiecesAboveHorizon): its chord along the frame's first
+        // edge, then the arc back, counterclockwise.
+        const Vec3 from = light.corner, to = light.corner + light.edgeU;
+        emit(from, to);
+        const EdgeDerivative e = discArcG(light, to, from, rec.point);
+        g += e.g;
+        if (self.mSettings.gradient) dg += e.dg;
+    } else if (light.shape == LightShape::Disc) {
         const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
         const EdgeDerivative e = discArcG(light, start, start, rec.point);
         g += e.g;
@@ -263,7 +271,10 @@ double ContourIntegrator::Lattice::coverageKey(const Uncovered& u) const {
 
 // Form factor of the uncovered cells (the elementary form factor at each centre).
 double ContourIntegrator::Lattice::uncoveredFormFactor() const {
-    const double area = light.area() / (double(Na) * Nb);
+    // A cell's area is the frame's over the lattice's cells (for a polygon or disc the frame
+    // is larger than what emits: until 2026-12-05 the emitting area was divided, and a
+    // triangle's uncovered cells counted half).
+    const double area = glm::length(glm::cross(light.edgeU, light.edgeV)) / (double(Na) * Nb);
     double sum = 0.0;
     for (const Uncovered& u : scratch.mUncovered) {
         const Vec3 d = u.centre - rec.point;

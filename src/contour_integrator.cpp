@@ -57,7 +57,64 @@ std::vector<uint32_t> distinct(std::vector<uint32_t> v) {
     return v;
 }
 
+// A disc light whose receiver's horizon cuts it emits a circular segment (the part above the
+// horizon), whose two corners, where the horizon meets the circle, need not be lattice
+// points of the disc's square frame: the emitting area near them could poke into squares
+// whose corners all lie outside it and go unseen (bench_bounds --lights mixed, seed 2809: a
+// receiver seeing 1% of a disc over its horizon got -3 times the answer). That part is
+// integrated instead as three pieces whose corners are their frames' corners: with Ps and Pe
+// the horizon's meeting points and A the middle of the arc between them, the triangle
+// Ps A Pe and the two segments between the chords Ps A, A Pe and their arcs, each in the
+// rectangle on its chord as tall as its segment (the arc touches the rectangle's far side at
+// its middle, as a whole disc touches its square). False when the horizon does not cut the
+// disc (the disc is integrated whole, on its square).
+bool discPiecesAboveHorizon(const RectLight& disc, const Receiver& r, std::vector<RectLight>& pieces) {
+    const Vec3 e1 = glm::normalize(disc.edgeU), e2 = glm::normalize(disc.edgeV);
+    const double R = disc.radius;
+    // The horizon on the disc's plane: f = f0 + x a1 + y a2 > 0 above it.
+    const double f0 = glm::dot(disc.center - r.point, r.normal);
+    const double a1 = glm::dot(e1, r.normal), a2 = glm::dot(e2, r.normal);
+    const double amp = std::hypot(a1, a2);
+    if (!(amp > 0.0)) return false;
+    const double d = -f0 / amp;  // the chord's offset from the centre, along (a1, a2)
+    if (!(d > -R * (1.0 - 1e-9)) || !(d < R * (1.0 - 1e-9))) return false;
+    const double phiU = std::atan2(a2, a1), beta = std::acos(d / R);
+    auto at = [&](double phi) { return disc.center + R * (std::cos(phi) * e1 + std::sin(phi) * e2); };
+    const Vec3 ps = at(phiU - beta), a = at(phiU), pe = at(phiU + beta);
+    const Vec3 n = disc.normal();
+    pieces.clear();
+    try {
+        // Its edge on the horizon, pe -> ps, is one of its frame's edges (not the diagonal
+        // that cuts the frame, where the horizon's rounding and the cut's would meet).
+        pieces.push_back(polygonLight({a, pe, ps}));
+    } catch (const std::invalid_argument&) {
+        // A sliver of no area (the horizon all but tangent): the segments alone.
+    }
+    // The segment on chord from -> to (the arc runs counterclockwise from `to` back to `from`).
+    auto segment = [&](const Vec3& from, const Vec3& to) {
+        const Vec3 chord = to - from;
+        const Vec3 w = glm::normalize(glm::cross(n, chord));  // away from the centre
+        const double half = 0.5 * glm::length(chord);
+        const double sagitta = R - std::sqrt(std::max(0.0, R * R - half * half));
+        if (!(sagitta > 1e-12 * R)) return;
+        RectLight piece = disc;
+        piece.corner = from;
+        piece.edgeU = chord;
+        piece.edgeV = sagitta * w;
+        pieces.push_back(piece);
+    };
+    segment(a, ps);
+    segment(pe, a);
+    for (RectLight& piece : pieces) piece.radiance = disc.radiance;
+    return true;
+}
+
 }  // namespace
+
+bool aci::isDiscPiece(const RectLight& light) {
+    return light.shape == LightShape::Disc &&
+           std::abs(glm::length(light.corner - light.center) - light.radius) <= 1e-9 * light.radius;
+}
 
 FirstLevelGrid firstLevelGrid(const RectLight& light, const AciSettings& settings) {
     const int p = std::max(1, settings.grid);
@@ -84,6 +141,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     lightNormal = l.normal();
     cuts = cuttingEdges(l);
     shaped = l.shape != LightShape::Rect;
+    horizonFree = isDiscPiece(l);
     const Vec3 unitU = l.edgeU / double(Na), unitV = l.edgeV / double(Nb);
     unit = 0.5 * (glm::length(unitU) + glm::length(unitV));
     epsWorld = 2.0 * unit;  // 2 units, averaged over the two edges
@@ -289,8 +347,39 @@ ContourIntegrator::~ContourIntegrator() = default;
 
 void ContourIntegrator::forgetCorners() { mScratch->mCorners.clear(); }
 
+Estimate ContourIntegrator::evaluatePieces(const Receiver& r, const std::vector<RectLight>& pieces,
+                                           Occluder::Query& query) {
+    mFanPiece = true;  // each piece is integrated as it is (no second clip)
+    Estimate sum;
+    sum.errorBound = mSettings.coverage && mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
+    for (const RectLight& piece : pieces) {
+        Estimate e;
+        try {
+            e = evaluate(r, piece, query);
+        } catch (...) {
+            mFanPiece = false;
+            throw;
+        }
+        sum.formFactor += e.formFactor;
+        sum.g += e.g;
+        sum.dg += e.dg;
+        sum.gradient += e.gradient;
+        sum.errorBound += e.errorBound;
+        sum.counts.merge(e.counts);
+        sum.pattern.insert(sum.pattern.end(), e.pattern.begin(), e.pattern.end());
+        sum.blockers.insert(sum.blockers.end(), e.blockers.begin(), e.blockers.end());
+    }
+    mFanPiece = false;
+    sum.blockers = distinct(std::move(sum.blockers));
+    return sum;
+}
+
 Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                                      Occluder::Query& query) {
+    if (light.shape == LightShape::Disc && !mFanPiece) {
+        std::vector<RectLight> pieces;
+        if (discPiecesAboveHorizon(light, r, pieces)) return evaluatePieces(r, pieces, query);
+    }
     if (light.shape == LightShape::Polygon) {
         // Emitting area between lattice corners that all lie outside it would go unseen: a
         // polygon whose corners are not its frame's, or a triangle whose corners the horizon
@@ -300,36 +389,16 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         const bool parallelogram = light.vertices.size() == 4 && frameHoldsCorners(light);
         const std::vector<Vec3> part = parallelogram || mFanPiece ? light.vertices : clipToHorizon(light.vertices, r);
         if (!parallelogram && !mFanPiece && !(part == light.vertices && frameHoldsCorners(light))) {
-            mFanPiece = true;  // each triangle is integrated as it is (no second clip)
-            Estimate sum;
-            sum.errorBound = mSettings.coverage && mSettings.errorBound ? 0.0 : std::numeric_limits<double>::quiet_NaN();
+            std::vector<RectLight> fan;
             for (size_t i = 1; i + 1 < part.size(); ++i) {
-                RectLight t;
                 try {
-                    t = polygonLight({part[0], part[i], part[i + 1]});
+                    fan.push_back(polygonLight({part[0], part[i], part[i + 1]}));
                 } catch (const std::invalid_argument&) {
                     continue;  // a sliver of no area where the horizon meets a corner
                 }
-                t.radiance = light.radiance;
-                Estimate e;
-                try {
-                    e = evaluate(r, t, query);
-                } catch (...) {
-                    mFanPiece = false;
-                    throw;
-                }
-                sum.formFactor += e.formFactor;
-                sum.g += e.g;
-                sum.dg += e.dg;
-                sum.gradient += e.gradient;
-                sum.errorBound += e.errorBound;
-                sum.counts.merge(e.counts);
-                sum.pattern.insert(sum.pattern.end(), e.pattern.begin(), e.pattern.end());
-                sum.blockers.insert(sum.blockers.end(), e.blockers.begin(), e.blockers.end());
+                fan.back().radiance = light.radiance;
             }
-            mFanPiece = false;
-            sum.blockers = distinct(std::move(sum.blockers));
-            return sum;
+            return evaluatePieces(r, fan, query);
         }
     }
     Scratch& sc = *mScratch;

@@ -73,7 +73,10 @@ private:
     struct Scratch;  // the sample lattice, coverage state and kept corners (src/contour_lattice.h)
     AciSettings mSettings;
     std::unique_ptr<Scratch> mScratch;
-    bool mFanPiece = false;  // evaluating one triangle of a polygon light's fan (no second clip)
+    /// The sum of evaluate() over pieces of one light (a polygon's fan of triangles, a disc's
+    /// part above the horizon), each integrated as it is.
+    Estimate evaluatePieces(const Receiver& r, const std::vector<RectLight>& pieces, Occluder::Query& query);
+    bool mFanPiece = false;  // evaluating one piece of a polygon or disc light (no second clip)
 };
 
 /// One-shot convenience: a fresh ContourIntegrator per call.
