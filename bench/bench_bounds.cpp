@@ -15,6 +15,8 @@
 // --lights rect|mixed: the scenes' lights (bench/random_scenes.h, LightShapes): rect, the
 // rectangles of every figure before 2026-12-05; mixed, a seed's light made a rectangle, disc,
 // triangle or convex 5- to 7-gon on the same frame, the rest of the scene unchanged.
+// --fog: one or two fog volumes more in each scene (bench/random_scenes.h, "Volumes"); needs
+// --lights rect. The reference (mc-ratio) weights its samples by their transmittance.
 // --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
@@ -37,6 +39,7 @@
 #include "random_scenes.h"
 #include "penumbra/camera.h"
 #include "penumbra/contour_integrator.h"
+#include "penumbra/estimator.h"
 #include "penumbra/form_factor.h"
 #include "penumbra/monte_carlo.h"
 #include "penumbra/renderer.h"
@@ -53,6 +56,7 @@ struct Args {
     int steps = 5;  // AciSettings' (probe's) default
     std::string out = "/tmp/penumbra_bounds";
     std::string lights = "rect";
+    bool fog = false;
 };
 
 // A receiver point seen through a pixel: the nearest receiver plane, or the obstacle that a
@@ -120,11 +124,14 @@ int main(int argc, char** argv) {
                              {"--threads", &a.threads},
                              {"--steps", &a.steps},
                              {"--out", &a.out},
-                             {"--lights", &a.lights}});
+                             {"--lights", &a.lights},
+                             {"--fog", std::function<void()>([&a] { a.fog = true; })}});
         if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
             a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
                                              "and --threads must be positive, --steps in [1, 12]");
+        if (a.fog && a.lights != "rect")
+            bench::failUsage("bench_bounds", "--fog needs --lights rect (polygon and disc lights do not light volumes)");
         std::filesystem::create_directories(a.out);
         tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
         std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "
@@ -136,7 +143,7 @@ int main(int argc, char** argv) {
         for (int i = 0; i < a.seeds; ++i) {
             const int seed = a.firstSeed + i;
             const auto start = std::chrono::steady_clock::now();
-            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed), randomscenes::parseLightShapes(a.lights));
+            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed), randomscenes::parseLightShapes(a.lights), a.fog);
             const std::string path = a.out + "/seed_" + std::to_string(seed) + ".json";
             std::ofstream(path) << g.json;
             const Scene scene = parseScene(g.json, path, a.out);
@@ -168,7 +175,8 @@ int main(int argc, char** argv) {
                 s.steps = a.steps;
                 s.rayOffset = receiverRayOffset(occ, p.r.point, 1e-9);
                 ContourIntegrator aci(s);
-                const Estimate e = aci.evaluate(p.r, light, q);
+                // estimate(): aciThroughMedia where fog lies between (--fog), else evaluate().
+                const Estimate e = estimate(Method::Aci, p.r, light, q, aci, McSettings{});
                 p.aci = e.formFactor;
                 p.bound = e.errorBound;
                 p.rays = e.counts.shadowRays();
@@ -202,6 +210,7 @@ int main(int argc, char** argv) {
                         maxRatio, seconds);
             if (a.lights != "rect")
                 std::printf("  %s\n", g.description.substr(0, g.description.find(';')).c_str());
+            if (a.fog) std::printf("  %s\n", g.description.substr(g.description.find("; fog") + 2).c_str());
             for (size_t k = 0; k < results.size(); ++k) {
                 const PointResult& p = results[k];
                 if (!p.violation) continue;

@@ -9,7 +9,7 @@
 //                [--gallery-size 200[,800] | --gallery-size 0] [--gallery-dir DIR]
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
-//                [--adjudicate-samples 1048576] [--lights rect|mixed]
+//                [--adjudicate-samples 1048576] [--lights rect|mixed] [--fog]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -21,7 +21,8 @@
 // off) judges ACI's compared pixels over 6 units again, against two N-ray references of each
 // pixel alone (below). --lights mixed gives each seed's scene a rectangle, disc, triangle or
 // convex 5- to 7-gon light on the rectangle's frame (bench/random_scenes.h, LightShapes; the
-// default, rect, is every figure's before 2026-12-05).
+// default, rect, is every figure's before 2026-12-05). --fog adds one or two fog volumes to
+// each seed's scene (bench/random_scenes.h, "Volumes"; with --lights rect only).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -148,6 +149,7 @@ struct Args {
     std::vector<std::string> gallery{"default", "table1"};  // scene stems in galleryDir
     bool saveImages = false;
     LightShapes lights = LightShapes::Rect;
+    bool fog = false;
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
     int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
 };
@@ -220,11 +222,13 @@ Args parseArgs(int argc, char** argv) {
         }
         else if (s == "--save-images") a.saveImages = true;
         else if (s == "--lights") a.lights = parseLightShapes(next());
+        else if (s == "--fog") a.fog = true;
         else if (s == "--adjudicate-samples") a.adjudicateSamples = int(parseInt(s, next()));
         else if (s == "--help" || s == "-h") usage("seeded random scenes: ACI against Monte Carlo");
         else usage("unknown option " + s);
     }
     if (a.seeds < 0) usage("--seeds must be >= 0");
+    if (a.fog && a.lights != LightShapes::Rect) usage("--fog needs --lights rect (polygon and disc lights do not light volumes)");
     if (a.threads < 1) usage("--threads must be >= 1");
     if (a.refSamples < 1) usage("--ref-samples must be >= 1");
     if (a.repeat < 1) usage("--repeat must be >= 1");
@@ -929,7 +933,7 @@ int main(int argc, char** argv) {
 
         for (int i = 0; i < args.seeds; ++i) {
             const uint64_t seed = args.firstSeed + uint64_t(i);
-            const Generated g = generateScene(seed, args.lights);
+            const Generated g = generateScene(seed, args.lights, args.fog);
             const std::string path = args.out + "/seed_" + std::to_string(seed) + ".json";
             {
                 std::ofstream f(path);

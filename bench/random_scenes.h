@@ -183,6 +183,17 @@ struct Generated {
 // scene's: a seed's mixed scene differs from its rect scene in the light alone.
 enum class LightShapes { Rect, Mixed };
 
+// Volumes (generateScene's `fog`; bench_random and bench_bounds --fog): one or two fog
+// obstacles more, from a third stream seeded from the seed alone: overall size D = L x
+// 10^U(log10 0.15, log10 0.6), placed as the obstacles "between" (a point over the light's
+// frame, a horizontal offset, a height uniform between the plane and the light's plane with
+// D/2 + 0.005 and D/2 + 0.03 to spare); one sphere of radius D/2 x U(0.6, 1), or a smooth
+// union (blend D/4) of 2-3 spheres of radius D/2 x U(0.35, 0.55) touching the D/2 sphere from
+// inside; density U(0.5, 5), falloff 0 (3 in 10) or U(0.05, 0.5) x D/2, extinction 1, voxel
+// max(the scene's, D/48). The camera frames the fogs and their shadows too, so a fog scene's
+// camera differs from its seed's plain one; its light is the rectangle (polygon and disc lights
+// do not light volumes).
+
 inline LightShapes parseLightShapes(const std::string& s) {
     if (s == "rect") return LightShapes::Rect;
     if (s == "mixed") return LightShapes::Mixed;
@@ -232,7 +243,7 @@ inline void drawDimensions(GenObstacle& o, double D, double voxel, Rng& rng) {
     o.extent = 2.0 * o.boundingRadius();
 }
 
-inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::Rect) {
+inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::Rect, bool fog = false) {
     Rng rng(seed);
     const double voxel = std::round(rng.uniform(0.01, 0.02) * 10000.0) / 10000.0;
 
@@ -312,6 +323,53 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
         obstacles.push_back(o);
     }
 
+    // Fog (Volumes, documented above): from a stream of its own.
+    struct GenFog {
+        std::vector<std::pair<Vec3, double>> spheres;  // centre, radius
+        Vec3 centre{0.0};
+        double size = 0.0, density = 0.0, falloff = 0.0, voxel = 0.0;
+    };
+    std::vector<GenFog> fogs;
+    if (fog) {
+        Rng frng(seed ^ 0x3C6EF372FE94F82Bull);
+        const int fogCount = 1 + frng.below(2);
+        for (int k = 0; k < fogCount; ++k) {
+            GenFog f;
+            double D = L * std::pow(10.0, frng.uniform(std::log10(0.15), std::log10(0.6)));
+            bool placed = false;
+            for (int attempt = 0; attempt < 400 && !placed; ++attempt) {
+                if (attempt > 0 && attempt % 40 == 0) D *= 0.7;
+                const Vec3 onLight = corner + frng.uniform(-0.25, 1.25) * edgeU +
+                                     frng.uniform(-0.25, 1.25) * edgeV;
+                const double r = (0.3 * L + 0.3) * std::sqrt(frng.uniform());
+                const double phi = frng.uniform(0.0, 2.0 * kPi);
+                const double x = onLight.x + r * std::cos(phi), y = onLight.y + r * std::sin(phi);
+                const double zLo = 0.5 * D + 0.005;
+                const double dxy = (x - lightCenter.x) * n.x + (y - lightCenter.y) * n.y;
+                const double zHi = lightCenter.z + (0.5 * D + 0.03 - dxy) / n.z;
+                if (!(zHi > zLo)) continue;
+                f.centre = Vec3(x, y, frng.uniform(zLo, zHi));
+                placed = true;
+            }
+            if (!placed) continue;
+            f.size = D;
+            const double R = 0.5 * D;
+            const int parts = 1 + frng.below(3);
+            if (parts == 1) {
+                f.spheres.push_back({f.centre, R * frng.uniform(0.6, 1.0)});
+            } else {
+                for (int i = 0; i < parts; ++i) {
+                    const double ri = R * frng.uniform(0.35, 0.55);
+                    f.spheres.push_back({f.centre + (R - ri) * frng.unitVector(), ri});
+                }
+            }
+            f.density = std::round(frng.uniform(0.5, 5.0) * 100.0) / 100.0;
+            f.falloff = frng.uniform() < 0.3 ? 0.0 : std::round(frng.uniform(0.05, 0.5) * R * 1000.0) / 1000.0;
+            f.voxel = std::round(std::max(voxel, D / 48.0) * 10000.0) / 10000.0;
+            fogs.push_back(f);
+        }
+    }
+
     // The camera: frame the obstacles and their shadows.
     struct Item {
         Vec3 c;
@@ -319,6 +377,13 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
     };
     std::vector<Item> items;
     Box3 roi;
+    for (const GenFog& f : fogs) {
+        GenObstacle o;
+        o.kind = Sphere;
+        o.radius = 0.5 * f.size;
+        o.center = f.centre;
+        obstacles.push_back(o);  // framed like a sphere; removed again below
+    }
     for (const GenObstacle& o : obstacles) {
         const double rb = o.boundingRadius();
         items.push_back({o.center, rb});
@@ -335,6 +400,7 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
         roi.extend(it.c - Vec3(it.r));
         roi.extend(it.c + Vec3(it.r));
     }
+    obstacles.resize(obstacles.size() - fogs.size());
     const Vec3 lookAt = 0.5 * (roi.lo + roi.hi);
     items.push_back({lookAt, 0.6});  // frame at least 0.6 around the centre
     const double fov = 40.0, half = rad(0.5 * fov);
@@ -458,14 +524,37 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
                 break;
         }
         if (o.analytic) js << ", \"analytic\": true";
-        js << ",\n     \"albedo\": " << vec(albedo) << "}" << (i + 1 < obstacles.size() ? "," : "")
-           << "\n";
+        js << ",\n     \"albedo\": " << vec(albedo) << "}"
+           << (i + 1 < obstacles.size() || !fogs.empty() ? "," : "") << "\n";
         const double gapPlane = o.center.z - o.support(Vec3(0, 0, 1));
         const double gapLight = glm::dot(o.center - lightCenter, n) - o.support(n);
         std::snprintf(line, sizeof line, " %s %.3f (%.0f%% of L, %s, gaps %.3f/%.3f)",
                       (std::string(kKindNames[o.kind]) + (o.analytic ? "*" : "")).c_str(),
                       o.extent, 100.0 * o.extent / L, o.mode, gapPlane, gapLight);
         desc << line << (i + 1 < obstacles.size() ? ";" : "");
+    }
+    for (size_t k = 0; k < fogs.size(); ++k) {
+        const GenFog& f = fogs[k];
+        js << "    {\"name\": \"fog_" << k << "\", \"type\": \"fog\", \"density\": " << num(f.density)
+           << ", \"falloff\": " << num(f.falloff) << ", \"extinction\": 1, \"voxel_size\": "
+           << num(f.voxel) << ",\n     \"shape\": ";
+        auto sphereJson = [&](const std::pair<Vec3, double>& sp) {
+            return "{\"type\": \"sphere\", \"center\": " + vec(sp.first) + ", \"radius\": " +
+                   num(sp.second) + "}";
+        };
+        if (f.spheres.size() == 1) {
+            js << sphereJson(f.spheres[0]);
+        } else {
+            js << "{\"type\": \"csg\", \"op\": \"smooth_union\", \"blend\": " << num(0.25 * f.size)
+               << ", \"children\": [";
+            for (size_t i = 0; i < f.spheres.size(); ++i)
+                js << (i ? ",\n       " : "") << sphereJson(f.spheres[i]);
+            js << "]}";
+        }
+        js << "}" << (k + 1 < fogs.size() ? "," : "") << "\n";
+        std::snprintf(line, sizeof line, "; fog %.3f (%zu spheres, density %.2f, falloff %.3f, voxel %.4f)",
+                      f.size, f.spheres.size(), f.density, f.falloff, f.voxel);
+        desc << line;
     }
     js << "  ],\n";
     js << "  \"receivers\": [{\"type\": \"plane\", \"point\": [0, 0, 0], \"normal\": [0, 0, 1], "

@@ -376,7 +376,13 @@ Estimate ContourIntegrator::evaluatePieces(const Receiver& r, const std::vector<
 
 Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                                      Occluder::Query& query) {
-    if (light.shape == LightShape::Disc && !mFanPiece) {
+    // (Only a disc on its own square: a part of one, as aciThroughMedia's cells would be, is
+    // integrated as it is.)
+    const bool wholeDisc = light.shape == LightShape::Disc &&
+                           glm::length(light.corner + 0.5 * (light.edgeU + light.edgeV) - light.center) <=
+                               1e-9 * light.radius &&
+                           std::abs(glm::length(light.edgeU) - 2.0 * light.radius) <= 1e-9 * light.radius;
+    if (wholeDisc && !mFanPiece) {
         std::vector<RectLight> pieces;
         if (discPiecesAboveHorizon(light, r, pieces)) return evaluatePieces(r, pieces, query);
     }
