@@ -160,7 +160,7 @@ struct Args {
                  "usage: bench_random [--seeds N] [--first-seed S] [--sizes 200,800] "
                  "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
                  "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images] "
-                 "[--adjudicate-samples N]\n");
+                 "[--adjudicate-samples N] [--lights rect|mixed] [--fog]\n");
     std::exit(2);
 }
 
