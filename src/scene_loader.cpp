@@ -837,10 +837,10 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     buildPlans(plans, budget, ctx.file, ctx.cache, scene);
     if (!scene.volumes.empty()) {
         for (size_t i = 0; i < scene.lights.size(); ++i) {
-            if (scene.lights[i].shape != LightShape::Rect)
+            if (scene.lights[i].shape == LightShape::Disc)
                 throw InputError(ctx.file, "/lights/" + std::to_string(i) + "/type",
-                                 "polygon and disc lights do not light volumes yet (the scene has a "
-                                 "fog or density obstacle): use a \"rect\" light");
+                                 "disc lights do not light volumes yet (the scene has a fog or "
+                                 "density obstacle): use a \"rect\" or \"polygon\" light");
         }
     }
     scene.inputFiles = ctx.inputs;
