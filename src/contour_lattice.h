@@ -97,6 +97,11 @@ constexpr double kEscalateUnproven = 0.8;
 // AciSettings::adaptiveSteps: one dichotomy step fewer where every footprint on the light is at
 // least this many units of the finer lattice wide.
 constexpr double kAdaptiveWidth = 16.0;
+// A finer lattice (evaluate()) while a cell of it, seen straight on at the light's distance,
+// would carry more than this form factor (unit^2 / (pi d^2)) and a footprint is narrower than
+// kAdaptiveWidth cells; up to this many lattice units along the longer edge.
+constexpr double kFineCellFormFactor = 5e-4;
+constexpr int kMaxFinerLattice = 512;
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
 // Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
 // within half an interval of its every point and the stopping rule on centres (every uncovered

@@ -840,7 +840,8 @@ Scene parseDocument(const Json& root, const Context& ctx) {
             if (scene.lights[i].shape == LightShape::Disc)
                 throw InputError(ctx.file, "/lights/" + std::to_string(i) + "/type",
                                  "disc lights do not light volumes yet (the scene has a fog or "
-                                 "density obstacle): use a \"rect\" or \"polygon\" light");
+                                 "density obstacle): use a \"rect\" light, or a \"polygon\" of many sides in "
+                                 "the disc's place");
         }
     }
     scene.inputFiles = ctx.inputs;
