@@ -15,8 +15,8 @@
 // --lights rect|mixed: the scenes' lights (bench/random_scenes.h, LightShapes): rect, the
 // rectangles of every figure before 2026-12-05; mixed, a seed's light made a rectangle, disc,
 // triangle or convex 5- to 7-gon on the same frame, the rest of the scene unchanged.
-// --fog: one or two fog volumes more in each scene (bench/random_scenes.h, "Volumes"); needs
-// --lights rect. The reference (mc-ratio) weights its samples by their transmittance.
+// --fog: one or two fog volumes more in each scene (bench/random_scenes.h, "Volumes"), with
+// either --lights. The reference (mc-ratio) weights its samples by their transmittance.
 // --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
@@ -130,8 +130,6 @@ int main(int argc, char** argv) {
             a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
                                              "and --threads must be positive, --steps in [1, 12]");
-        if (a.fog && a.lights != "rect")
-            bench::failUsage("bench_bounds", "--fog needs --lights rect (polygon and disc lights do not light volumes)");
         std::filesystem::create_directories(a.out);
         tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
         std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "

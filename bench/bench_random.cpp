@@ -22,7 +22,7 @@
 // pixel alone (below). --lights mixed gives each seed's scene a rectangle, disc, triangle or
 // convex 5- to 7-gon light on the rectangle's frame (bench/random_scenes.h, LightShapes; the
 // default, rect, is every figure's before 2026-12-05). --fog adds one or two fog volumes to
-// each seed's scene (bench/random_scenes.h, "Volumes"; with --lights rect only).
+// each seed's scene (bench/random_scenes.h, "Volumes"; with either --lights).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -228,7 +228,6 @@ Args parseArgs(int argc, char** argv) {
         else usage("unknown option " + s);
     }
     if (a.seeds < 0) usage("--seeds must be >= 0");
-    if (a.fog && a.lights != LightShapes::Rect) usage("--fog needs --lights rect (polygon and disc lights do not light volumes)");
     if (a.threads < 1) usage("--threads must be >= 1");
     if (a.refSamples < 1) usage("--ref-samples must be >= 1");
     if (a.repeat < 1) usage("--repeat must be >= 1");

@@ -191,8 +191,7 @@ enum class LightShapes { Rect, Mixed };
 // union (blend D/4) of 2-3 spheres of radius D/2 x U(0.35, 0.55) touching the D/2 sphere from
 // inside; density U(0.5, 5), falloff 0 (3 in 10) or U(0.05, 0.5) x D/2, extinction 1, voxel
 // max(the scene's, D/48). The camera frames the fogs and their shadows too, so a fog scene's
-// camera differs from its seed's plain one; its light is the rectangle (polygon and disc lights
-// do not light volumes).
+// camera differs from its seed's plain one; its light is the one --lights draws.
 
 inline LightShapes parseLightShapes(const std::string& s) {
     if (s == "rect") return LightShapes::Rect;

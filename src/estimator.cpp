@@ -160,22 +160,51 @@ std::optional<RectLight> polygonPart(const RectLight& light, double u0, double v
     }
 }
 
+// A disc's stand-in in aciThroughMedia's correction term: the regular polygon of kDiscSides
+// sides with the disc's centre, plane and area (its vertices a little outside the circle, its
+// edges' middles a little inside).
+constexpr int kDiscSides = 64;
+// The area between the circle and that polygon (the symmetric difference), over the disc's:
+// 0.00062 by a fine polar quadrature; counted with a margin.
+constexpr double kDiscSliver = 0.001;
+
+RectLight discStandIn(const RectLight& disc) {
+    const double a = kPi / kDiscSides;
+    // Equal area: kDiscSides R'^2 sin(a) cos(a) = pi R^2.
+    const double rv = disc.radius * std::sqrt(kPi / (kDiscSides * std::sin(a) * std::cos(a)));
+    const Vec3 e1 = glm::normalize(disc.edgeU), e2 = glm::normalize(disc.edgeV);
+    std::vector<Vec3> v;
+    for (int k = 0; k < kDiscSides; ++k) {
+        const double phi = 2.0 * a * k;
+        v.push_back(disc.center + rv * (std::cos(phi) * e1 + std::sin(phi) * e2));
+    }
+    RectLight out = polygonLight(v);
+    out.radiance = disc.radiance;
+    out.name = disc.name;
+    return out;
+}
+
 }  // namespace
 
-Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLight& light,
+Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLight& whole,
                          Occluder::Query& query, const MediaCubature& cubature) {
     // The opaque obstacles first: ACI on the whole light. In an umbra the media change nothing.
-    Estimate out = aci.evaluate(r, light, query);
+    Estimate out = aci.evaluate(r, whole, query);
     out.pattern.clear();
     if (!(out.formFactor > 0.0)) return out;
-    const double fullOpen = unoccludedFormFactor(light, r);
+    const double fullOpen = unoccludedFormFactor(whole, r);
+    // The cells: of the light itself, or for a disc (whose cells would hold arcs) of the
+    // regular polygon of kDiscSides sides and the disc's area that stands in for it in the
+    // correction term alone (F(light) above is the disc's, exactly). The two differ on
+    // slivers totalling kDiscSliver of the disc's area, which the bound counts.
+    const bool disc = whole.shape == LightShape::Disc;
+    const RectLight light = disc ? discStandIn(whole) : whole;
     // Nothing opaque anywhere on the light (the visible form factor is the unoccluded one): a
     // cell's visible form factor is then its own closed form, no ray needed. For rectangle
     // lights, whose cells are rectangles, and polygons, whose cells are the convex polygons
     // they cut from it (polygonPart); a disc's cells would hold arcs (discs do not light
     // volumes: the scene loader refuses them).
-    const bool straight = light.shape != LightShape::Disc;
-    const bool open = straight && out.formFactor >= fullOpen * (1.0 - 1e-9);
+    const bool open = out.formFactor >= fullOpen * (1.0 - 1e-9);
 
     const AciSettings base = aci.settings();
     const Vec3 origin = r.point + base.rayOffset * r.normal;
@@ -321,7 +350,7 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         // opaque feature between the nodes of a cell is still in F(light) exactly: it only
         // misses its (1 - T) share here.
         if (a.m.hidden == a.m.emitting) continue;
-        if (open || (a.m.hidden == 0 && straight)) {
+        if (open || a.m.hidden == 0) {
             // G always (the renderer interpolates it), its Jacobian only when asked for.
             if (base.gradient) {
                 const GWithDerivative u = unoccludedG(cell, r);
@@ -346,7 +375,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         // T within the cell is within the spread of its nodes around the mean that stands for it.
         const double spread = std::max(a.m.hi - a.m.simpson, a.m.simpson - a.m.lo);
         out.errorBound += w * (std::isfinite(e.errorBound) ? e.errorBound : 0.0) +
-                          spread * std::max(0.0, e.formFactor);
+                          spread * std::max(0.0, e.formFactor) +
+                          (disc ? w * kDiscSliver * std::max(0.0, e.formFactor) : 0.0);
     }
     aci.setSettings(base);
     out.formFactor = std::max(0.0, out.formFactor);

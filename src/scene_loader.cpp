@@ -835,15 +835,6 @@ Scene parseDocument(const Json& root, const Context& ctx) {
     if (top.has("obstacles")) plans = parseObstacles(top.at("obstacles"), scene.levelSet);
 
     buildPlans(plans, budget, ctx.file, ctx.cache, scene);
-    if (!scene.volumes.empty()) {
-        for (size_t i = 0; i < scene.lights.size(); ++i) {
-            if (scene.lights[i].shape == LightShape::Disc)
-                throw InputError(ctx.file, "/lights/" + std::to_string(i) + "/type",
-                                 "disc lights do not light volumes yet (the scene has a fog or "
-                                 "density obstacle): use a \"rect\" light, or a \"polygon\" of many sides in "
-                                 "the disc's place");
-        }
-    }
     scene.inputFiles = ctx.inputs;
     return scene;
 }

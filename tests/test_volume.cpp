@@ -402,11 +402,11 @@ TEST_CASE("a lit cloud: alpha over the background, and the in-scattering lattice
     CHECK(mean < 0.01 * peak);
 }
 
-TEST_CASE("polygon lights through a fog: a rectangle's four vertices give the rect light's "
-          "answer, a hexagon a fine quadrature's", "[volume][lights]") {
+TEST_CASE("polygon and disc lights through a fog: a rectangle's four vertices give the rect "
+          "light's answer, a hexagon and a disc a fine quadrature's", "[volume][lights]") {
     // The slab of the test above under (a) the rect light and the same rectangle as a polygon,
-    // (b) a hexagon, with and without an exact sphere between the slab and the ground. Until
-    // 2026-12-05 the loader refused polygon lights in scenes with volumes.
+    // (b) a hexagon, (c) a disc, with and without an exact sphere between the slab and the
+    // ground. Until 2026-12-05 the loader refused polygon and disc lights in scenes with volumes.
     auto sceneOf = [](const std::string& light, bool sphere) {
         return R"({"lights": [)" + light + R"(],
           "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
@@ -422,6 +422,7 @@ TEST_CASE("polygon lights through a fog: a rectangle's four vertices give the re
         hex += (k ? ", [" : "[") + std::to_string(1.1 * std::cos(a)) + ", " + std::to_string(1.1 * std::sin(a)) + ", 4]";
     }
     hex += R"(], "radiance": [4, 4, 4]})";
+    const std::string disc = R"({"type": "disc", "center": [0.1, -0.1, 4], "normal": [0, 0, -1], "radius": 1.1, "radiance": [4, 4, 4]})";
     const double sigma = 3.0, thickness = 0.2;
     const AnalyticSphere ball{Vec3(0.3, -0.2, 1.2), 0.35};
     // T dF over the light by a 600 x 600 midpoint rule on its frame (cells whose centre lies on
@@ -450,8 +451,9 @@ TEST_CASE("polygon lights through a fog: a rectangle's four vertices give the re
         const Scene sr = parseScene(sceneOf(rect, sphere), "rect.json", ".");
         const Scene sq = parseScene(sceneOf(quad, sphere), "quad.json", ".");
         const Scene sh = parseScene(sceneOf(hex, sphere), "hex.json", ".");
-        const Occluder orr = sr.makeOccluder(), oq = sq.makeOccluder(), oh = sh.makeOccluder();
-        Occluder::Query qr = orr.makeQuery(), qq = oq.makeQuery(), qh = oh.makeQuery();
+        const Scene sd = parseScene(sceneOf(disc, sphere), "disc.json", ".");
+        const Occluder orr = sr.makeOccluder(), oq = sq.makeOccluder(), oh = sh.makeOccluder(), od = sd.makeOccluder();
+        Occluder::Query qr = orr.makeQuery(), qq = oq.makeQuery(), qh = oh.makeQuery(), qd = od.makeQuery();
         ContourIntegrator aci;
         for (const Vec3 m : {Vec3(0, 0, 0), Vec3(0.7, -0.4, 0), Vec3(-0.5, 0.9, 0), Vec3(2.0, 1.5, 0)}) {
             const Receiver r{m, kUp};
@@ -468,6 +470,12 @@ TEST_CASE("polygon lights through a fog: a rectangle's four vertices give the re
             // rule's cells cut by the border or the ball's silhouette).
             CHECK(std::abs(er.formFactor - refR) <= 0.002 * fullR);
             CHECK(std::abs(eh.formFactor - refH) <= 0.002 * fullH);
+            // A disc: its correction term over a 64-gon of its area (docs/volumes.md).
+            const Estimate ed = estimate(Method::Aci, r, sd.lights[0], qd, aci, McSettings{});
+            const double fullD = unoccludedFormFactor(sd.lights[0], r), refD = reference(sd.lights[0], m, sphere);
+            CAPTURE(ed.formFactor, refD, fullD, ed.errorBound);
+            CHECK(std::abs(ed.formFactor - refD) <= 0.002 * fullD);
+            CHECK(std::abs(ed.formFactor - refD) <= ed.errorBound + 0.002 * fullD);
         }
     }
 }
