@@ -17,6 +17,8 @@
 // triangle or convex 5- to 7-gon on the same frame, the rest of the scene unchanged.
 // --fog: one or two fog volumes more in each scene (bench/random_scenes.h, "Volumes"), with
 // either --lights. The reference (mc-ratio) weights its samples by their transmittance.
+// --light-scale S: each scene's light grown S times about its centre once the rest is drawn
+// (radiance over S^2): lights far larger than their distance from the receivers.
 // --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
@@ -57,6 +59,7 @@ struct Args {
     std::string out = "/tmp/penumbra_bounds";
     std::string lights = "rect";
     bool fog = false;
+    double lightScale = 1.0;
 };
 
 // A receiver point seen through a pixel: the nearest receiver plane, or the obstacle that a
@@ -125,11 +128,13 @@ int main(int argc, char** argv) {
                              {"--steps", &a.steps},
                              {"--out", &a.out},
                              {"--lights", &a.lights},
-                             {"--fog", std::function<void()>([&a] { a.fog = true; })}});
+                             {"--fog", std::function<void()>([&a] { a.fog = true; })},
+                             {"--light-scale", &a.lightScale}});
         if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
             a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
                                              "and --threads must be positive, --steps in [1, 12]");
+        if (!(a.lightScale > 0.0)) bench::failUsage("bench_bounds", "--light-scale must be > 0");
         std::filesystem::create_directories(a.out);
         tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
         std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "
@@ -141,7 +146,7 @@ int main(int argc, char** argv) {
         for (int i = 0; i < a.seeds; ++i) {
             const int seed = a.firstSeed + i;
             const auto start = std::chrono::steady_clock::now();
-            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed), randomscenes::parseLightShapes(a.lights), a.fog);
+            const randomscenes::Generated g = randomscenes::generateScene(uint64_t(seed), randomscenes::parseLightShapes(a.lights), a.fog, a.lightScale);
             const std::string path = a.out + "/seed_" + std::to_string(seed) + ".json";
             std::ofstream(path) << g.json;
             const Scene scene = parseScene(g.json, path, a.out);

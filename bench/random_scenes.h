@@ -242,7 +242,8 @@ inline void drawDimensions(GenObstacle& o, double D, double voxel, Rng& rng) {
     o.extent = 2.0 * o.boundingRadius();
 }
 
-inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::Rect, bool fog = false) {
+inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::Rect, bool fog = false,
+                               double lightScale = 1.0) {
     Rng rng(seed);
     const double voxel = std::round(rng.uniform(0.01, 0.02) * 10000.0) / 10000.0;
 
@@ -424,25 +425,30 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
     js << "// bench_random seed " << seed << " (bench/bench_random.cpp documents the generator)\n";
     js << "{\n  \"camera\": {\"eye\": " << vec(eye) << ", \"look_at\": " << vec(lookAt)
        << ", \"up\": [0, 0, 1], \"fov_deg\": " << num(fov) << ", \"width\": 800, \"height\": 800},\n";
+    // --light-scale: the light (whatever its shape) grown by lightScale about its centre after
+    // everything else was drawn, its radiance divided by lightScale^2.
+    const Vec3 lu = lightScale * edgeU, lv = lightScale * edgeV;
+    const Vec3 lc = lightCenter - 0.5 * lu - 0.5 * lv;
+    const double lrad = std::round(radiance / (lightScale * lightScale) * 1000.0) / 1000.0;
     std::string lightShape = "rect";
     if (shapes == LightShapes::Rect) {
-        js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(corner)
-           << ",\n     \"edge_u\": " << vecExact(edgeU) << ",\n     \"edge_v\": " << vecExact(edgeV)
+        js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(lc)
+           << ",\n     \"edge_u\": " << vecExact(lu) << ",\n     \"edge_v\": " << vecExact(lv)
            << ",\n     \"radiance\": "
-           << vec(Vec3(radiance)) << "}\n  ],\n";
+           << vec(Vec3(lrad)) << "}\n  ],\n";
     } else {
         Rng lrng(seed ^ 0xA5A5F00DCAFEBEEFull);
         const int pick = lrng.below(4);
         auto rescaled = [&](double area) {
-            return std::round(radiance * a * b / area * 1000.0) / 1000.0;
+            return std::round(radiance * a * b / (lightScale * lightScale * area) * 1000.0) / 1000.0;
         };
         if (pick == 0) {
-            js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(corner)
-               << ",\n     \"edge_u\": " << vecExact(edgeU) << ",\n     \"edge_v\": "
-               << vecExact(edgeV) << ",\n     \"radiance\": " << vec(Vec3(radiance))
+            js << "  \"lights\": [\n    {\"name\": \"key\", \"corner\": " << vecExact(lc)
+               << ",\n     \"edge_u\": " << vecExact(lu) << ",\n     \"edge_v\": "
+               << vecExact(lv) << ",\n     \"radiance\": " << vec(Vec3(lrad))
                << "}\n  ],\n";
         } else if (pick == 1) {
-            const double r = 0.5 * std::sqrt(a * b);
+            const double r = 0.5 * std::sqrt(a * b) * lightScale;
             lightShape = "disc";
             js << "  \"lights\": [\n    {\"name\": \"key\", \"type\": \"disc\", \"center\": "
                << vecExact(lightCenter) << ",\n     \"normal\": " << vecExact(n)
@@ -465,7 +471,9 @@ inline Generated generateScene(uint64_t seed, LightShapes shapes = LightShapes::
             }
             std::vector<Vec3> vs;
             for (double t : angles) {
-                vs.push_back(lightCenter + 0.5 * a * std::cos(t) * e1 + 0.5 * b * std::sin(t) * e2);
+                vs.push_back(lightScale == 1.0
+                                 ? lightCenter + 0.5 * a * std::cos(t) * e1 + 0.5 * b * std::sin(t) * e2
+                                 : lightCenter + lightScale * (0.5 * a * std::cos(t) * e1 + 0.5 * b * std::sin(t) * e2));
             }
             double area = 0.0;
             for (int i = 0; i < k; ++i) {
