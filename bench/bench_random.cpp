@@ -9,7 +9,7 @@
 //                [--gallery-size 200[,800] | --gallery-size 0] [--gallery-dir DIR]
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
-//                [--adjudicate-samples 1048576] [--lights rect|mixed] [--fog]
+//                [--adjudicate-samples 1048576] [--lights rect|mixed] [--fog] [--light-scale S]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -22,7 +22,8 @@
 // pixel alone (below). --lights mixed gives each seed's scene a rectangle, disc, triangle or
 // convex 5- to 7-gon light on the rectangle's frame (bench/random_scenes.h, LightShapes; the
 // default, rect, is every figure's before 2026-12-05). --fog adds one or two fog volumes to
-// each seed's scene (bench/random_scenes.h, "Volumes"; with either --lights).
+// each seed's scene (bench/random_scenes.h, "Volumes"; with either --lights). --light-scale S
+// grows each scene's light S times about its centre once the rest is drawn (radiance over S^2).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -150,6 +151,7 @@ struct Args {
     bool saveImages = false;
     LightShapes lights = LightShapes::Rect;
     bool fog = false;
+    double lightScale = 1.0;  // each scene's light grown this many times (random_scenes.h)
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
     int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
 };
@@ -160,7 +162,7 @@ struct Args {
                  "usage: bench_random [--seeds N] [--first-seed S] [--sizes 200,800] "
                  "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
                  "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images] "
-                 "[--adjudicate-samples N] [--lights rect|mixed] [--fog]\n");
+                 "[--adjudicate-samples N] [--lights rect|mixed] [--fog] [--light-scale S]\n");
     std::exit(2);
 }
 
@@ -223,6 +225,10 @@ Args parseArgs(int argc, char** argv) {
         else if (s == "--save-images") a.saveImages = true;
         else if (s == "--lights") a.lights = parseLightShapes(next());
         else if (s == "--fog") a.fog = true;
+        else if (s == "--light-scale") {
+            a.lightScale = std::atof(next().c_str());
+            if (!(a.lightScale > 0.0)) usage("--light-scale must be > 0");
+        }
         else if (s == "--adjudicate-samples") a.adjudicateSamples = int(parseInt(s, next()));
         else if (s == "--help" || s == "-h") usage("seeded random scenes: ACI against Monte Carlo");
         else usage("unknown option " + s);
@@ -932,7 +938,7 @@ int main(int argc, char** argv) {
 
         for (int i = 0; i < args.seeds; ++i) {
             const uint64_t seed = args.firstSeed + uint64_t(i);
-            const Generated g = generateScene(seed, args.lights, args.fog);
+            const Generated g = generateScene(seed, args.lights, args.fog, args.lightScale);
             const std::string path = args.out + "/seed_" + std::to_string(seed) + ".json";
             {
                 std::ofstream f(path);
