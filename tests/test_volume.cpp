@@ -437,11 +437,7 @@ TEST_CASE("polygon and disc lights through a fog: a rectangle's four vertices gi
                 if (!light.contains(p)) continue;
                 const Vec3 d = p - m;
                 const double r2 = glm::dot(d, d), r = std::sqrt(r2);
-                if (sphere) {
-                    const Vec3 oc = m - ball.center;
-                    const double b = glm::dot(oc, d), c = glm::dot(oc, oc) - ball.radius * ball.radius;
-                    if (b * b - r2 * c >= 0.0 && (-b - std::sqrt(b * b - r2 * c)) / r2 > 0.0) continue;
-                }
+                if (sphere && !exact::segmentMissesSphere(m, p, ball.center, ball.radius)) continue;
                 const double cosM = d.z / r;
                 sum += std::exp(-sigma * thickness / cosM) * cosM * cosM / (kPi * r2);
             }
