@@ -71,7 +71,8 @@ struct Uncovered {  // a cell of the light no disc proves yet
     double a0, b0, size;  // lattice coordinates
     double gap;           // its centre's distance to the nearest disc that would prove it
     Vec3 centre;
-    double key = 0.0;  // coverage's priority (Lattice::coverageKey), -inf once exhausted
+    double key = 0.0;  // how far it reaches from proven ground (Lattice::coverageKey), -inf once exhausted
+    double weight = 0.0;  // coverage's order: key x weight (Lattice::coverageWeight)
     bool exhausted = false;  // every lattice point coverage may ask in it is traced
     bool dead = false;       // covered, or replaced by its quarters (nextCoverageSample)
     size_t seen = 0;         // the traced discs its gap and key have taken in
@@ -386,6 +387,7 @@ struct ContourIntegrator::Lattice {
     bool provenWithoutDiscs(double a0, double b0, double size, int& footprint) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
     double coverageKey(const Uncovered& u) const;
+    double coverageWeight(const Vec3& centre) const;
     double uncoveredFormFactor() const;
     double finalUncoveredFormFactor();
     void gatherNear(int x0, int y0, int s);
