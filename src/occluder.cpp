@@ -497,6 +497,16 @@ Box3 Occluder::Query::mediaBounds() const {
     return out;
 }
 
+std::vector<Box3> Occluder::Query::mediumBoxes() const {
+    std::vector<Box3> out;
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const Box3& b = mOccluder->mediumBounds(mMedia ? (*mMedia)[k] : k);
+        if (!b.empty()) out.push_back(b);
+    }
+    return out;
+}
+
 bool Occluder::Query::mediaBetween(const Box3& origin, const Box3& target) const {
     Box3 hull = origin;
     hull.extend(target.lo);

@@ -475,3 +475,45 @@ TEST_CASE("polygon and disc lights through a fog: a rectangle's four vertices gi
         }
     }
 }
+
+TEST_CASE("two small fogs far apart under a large light: each sampled at its own footprint's "
+          "spacing", "[volume]") {
+    // bench_bounds --fog --light-scale 8, seed 3308, made plain: two small fog balls far apart
+    // under an 8 x 8 light 4 above the ground. The cubature's spacing came from the union of the
+    // media's boxes, which spans most of the light seen from between them; each ball's shadow on
+    // the light, some 0.4 in radius, then fell between nodes 0.5 apart and the ground came out up
+    // to 2% of the form factor high, several times its bound.
+    const std::string json = R"({
+      "lights": [{"corner": [-4, -4, 4], "edge_u": [0, 8, 0], "edge_v": [8, 0, 0], "radiance": [1, 1, 1]}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
+      "obstacles": [
+        {"type": "fog", "density": 5, "voxel_size": 0.01,
+         "shape": {"type": "sphere", "center": [0.5, 1.0, 0.65], "radius": 0.06}},
+        {"type": "fog", "density": 4, "voxel_size": 0.01,
+         "shape": {"type": "sphere", "center": [-1.5, -1.2, 1.0], "radius": 0.09}}],
+      "level_set": {"voxel_size": 0.01}})";
+    const Scene scene = parseScene(json, "two_fogs.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    Occluder::Query q = occ.makeQuery();
+    const RectLight& light = scene.lights[0];
+    ContourIntegrator aci;
+    McSettings mc;
+    mc.samples = 1 << 18;
+    int dimmed = 0;
+    for (int k = 0; k < 8; ++k) {
+        // Ground points around and between the two balls' feet.
+        const double t = k / 7.0;
+        const Vec3 m(0.5 + t * (-2.0) + 0.13 * std::sin(3.0 * k), 1.0 + t * (-2.2) + 0.11 * std::cos(5.0 * k), 0.0);
+        const Receiver r{m, kUp};
+        const Estimate e = estimate(Method::Aci, r, light, q, aci, McSettings{});
+        const double ref = estimate(Method::McSolidAngle, r, light, q, aci, mc).formFactor;
+        const double full = unoccludedFormFactor(light, r);
+        const double frac = std::clamp(ref / full, 0.0, 1.0);
+        const double sigma = full * std::sqrt(frac * (1.0 - frac) / mc.samples);
+        CAPTURE(k, m.x, m.y, e.formFactor, e.errorBound, ref, sigma, full);
+        if (ref < full * (1.0 - 1e-3)) ++dimmed;
+        CHECK(std::abs(e.formFactor - ref) <= 0.002 * full + 4.0 * sigma);
+        CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 1e-4 * full + 4.0 * sigma);
+    }
+    CHECK(dimmed >= 4);  // the balls do dim most of these points
+}

@@ -121,8 +121,9 @@ struct MediaCubature {
 /// once (closed-form contour integrals, so opaque silhouettes stay exact), then, over an
 /// adaptive quadtree of cells of the light, each cell's kernel-weighted mean T by the tensor
 /// Simpson rule on its 3 x 3 nodes (shared between neighbours, one ray each), split at least
-/// into 4 x 4 cells, further while the cell is wider than half the media's footprint (their
-/// bounding box projected from the receiver onto the light; outside it T = 1 without a ray) or
+/// into 4 x 4 cells, further while the cell is wider than half of a medium's footprint it meets
+/// (the medium's bounding box projected from the receiver onto the light; outside every
+/// footprint T = 1 without a ray; as deep as the smallest footprint needs, up to 6 levels) or
 /// while its Simpson and five-point means differ by more than the tolerance. A cell's visible
 /// form factor is its closed form when the whole light is visible (or all its nodes are, on a
 /// rectangle light), 0 when all its nodes are hidden, and ACI on the cell as a light of its own

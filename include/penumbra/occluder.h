@@ -265,6 +265,8 @@ public:
 
     /// The union of the bounds of the media in play (the restriction's, if any); empty if none.
     Box3 mediaBounds() const;
+    /// The bounds of each medium in play (the restriction's, if any), empty ones left out.
+    std::vector<Box3> mediumBoxes() const;
 
     /// Restricts the media the following queries march to those listed (indices into the
     /// Occluder's media); nullptr restores every medium.
