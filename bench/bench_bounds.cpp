@@ -108,8 +108,15 @@ void reference(const Receiver& r, const RectLight& light, Occluder::Query& q, do
     out.sigma = out.full * std::sqrt(std::max(frac * (1.0 - frac), 1.0 / samples) / samples);
 }
 
+// A difference under kNegligible (a form factor) is not judged: there the references are
+// not estimates. A ground point of seed 3215 (--lights mixed --light-scale 5) sees a sliver of
+// a triangle light over its horizon, F = 4e-13; none of mc-ratio's 2^20 samples lands on it and
+// it answered 0 with a deviation of 4e-19, flagging ACI's closed form (Method::Reference:
+// 5.5e-13). 1e-12 is a billionth of a pixel's value at any radiance a scene uses.
+constexpr double kNegligible = 1e-12;
+
 bool outside(const PointResult& p) {
-    return std::abs(p.aci - p.ref) > p.bound + 4.0 * p.sigma;
+    return std::abs(p.aci - p.ref) > p.bound + 4.0 * p.sigma + kNegligible;
 }
 
 }  // namespace

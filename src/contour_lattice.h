@@ -130,6 +130,23 @@ inline double parabolaWeight(const Vec3& x, const Vec3& z, const Vec3& y) {
     return 1.0 / (3.0 * s * (1.0 - s));
 }
 
+// The area between a conic arc and its chord over the area of its tangent triangle (the
+// chord's ends and the meeting point of their tangent lines), for the arc as a rational
+// quadratic Bezier curve of weight w on that triangle: 2/3 for a parabola (w = 1), towards 0
+// for a flat ellipse (w -> 0) and 1 for a hyperbola hugging its corner (w -> infinity).
+inline double conicSegmentShare(double w) {
+    if (!(w > 0.0)) return 0.0;
+    if (!std::isfinite(w)) return 1.0;
+    const double d = w - 1.0;
+    if (std::abs(d) < 1e-4) return 2.0 / 3.0 + (4.0 / 15.0) * d;  // the closed forms cancel there
+    if (w < 1.0) {
+        const double q = std::sqrt(1.0 - w * w);
+        return w / (q * q) * (std::acos(w) / q - w);
+    }
+    const double q = std::sqrt(w * w - 1.0);
+    return w / (q * q) * (w - std::acosh(w) / q);
+}
+
 // fieldRoot: secant steps on the level set's own field after its first one or two values (each
 // a dozen or so samples of the grid), how far (in voxels, along the ray) from the previous
 // closest approach the new one is looked for, and the field's value (in voxels) that counts as
@@ -339,6 +356,8 @@ struct ContourIntegrator::Lattice {
         double at;  // where v lies on the lattice line, in lattice units
     };
     std::vector<KnownCrossing> crossings;  // distance-guided modes: crossings of lattice lines
+    bool crossingAgrees(const KnownCrossing& k) const;
+    void dropContradictedCrossings();
 
     // ----- Distance-guided and tangent geometry (contour_tangent.cpp) -----
     float clearanceOf(LatticePoint q) const;

@@ -43,6 +43,7 @@ bool ContourIntegrator::Lattice::pass(int r) {
     for (int j = 0; j < squaresB; ++j)
         for (int i = 0; i < squaresA; ++i)
             if (!square(i * s, j * s, k, -1.0, 0)) return false;
+    if (self.mSettings.distanceGuided) dropContradictedCrossings();
     return true;
 }
 
@@ -403,19 +404,43 @@ const Vertex* ContourIntegrator::Lattice::knownCrossing(LatticePoint vis, Lattic
         if ((kv < kd) != (v0 < h0)) continue;
         const double e = k.at;
         if (!(e > lo && e < hi)) continue;
-        const int step = kv < kd ? 1 : -1;
-        bool agrees = true;
-        for (int j = kv + step; j != kd && agrees; j += step) {
-            const LatticePoint q = kh ? LatticePoint{j, line} : LatticePoint{line, j};
-            if (!traced(q)) continue;
-            agrees = (peek(q) == kVisible) == ((j - e) * step < 0.0);
-        }
-        if (agrees) return &k.v;
+        if (crossingAgrees(k)) return &k.v;
         crossings.erase(crossings.begin() + static_cast<std::ptrdiff_t>(i));
         remark = true;
         return nullptr;
     }
     return nullptr;
+}
+
+// Whether every sample traced inside a known crossing's bracket is visible before it and
+// hidden after it.
+bool ContourIntegrator::Lattice::crossingAgrees(const KnownCrossing& k) const {
+    const bool kh = k.vis.b == k.hid.b;
+    const int line = kh ? k.vis.b : k.vis.a;
+    const int kv = kh ? k.vis.a : k.vis.b, kd = kh ? k.hid.a : k.hid.b;
+    const int step = kv < kd ? 1 : -1;
+    for (int j = kv + step; j != kd; j += step) {
+        const LatticePoint q = kh ? LatticePoint{j, line} : LatticePoint{line, j};
+        if (!traced(q)) continue;
+        if ((peek(q) == kVisible) != ((j - k.at) * step < 0.0)) return false;
+    }
+    return true;
+}
+
+// After a pass: a crossing that a sample traced later in the pass contradicts is dropped, and
+// the pass runs again (remark) so that every square takes the new one. A square whose side's
+// crossing was placed before its neighbour's finer squares traced samples inside the bracket
+// otherwise kept it when no square asked for that side again: the neighbour, finding the
+// side's two halves one visible and one crossed, placed its own vertex, and the gap between
+// the two vertices, an open piece of contour, is not small where the light is seen at a grazing
+// angle (a ground point 0.16 from a hexagon light's plane: 4.5% more than the unoccluded form
+// factor, 1.4 times the bound; bench_bounds --lights mixed --light-scale 5, seed 3209).
+void ContourIntegrator::Lattice::dropContradictedCrossings() {
+    const size_t before = crossings.size();
+    crossings.erase(std::remove_if(crossings.begin(), crossings.end(),
+                                   [&](const KnownCrossing& k) { return !crossingAgrees(k); }),
+                    crossings.end());
+    if (crossings.size() != before) remark = true;
 }
 
 Vertex ContourIntegrator::Lattice::crossingOnSegment(LatticePoint vis, LatticePoint hid, int steps,
