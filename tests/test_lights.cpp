@@ -459,6 +459,50 @@ TEST_CASE("contour integration on a disc cut by the horizon: exact in every mode
     CHECK(shadowed >= 4);  // of 13 (5 at this commit): the sphere does shadow
 }
 
+TEST_CASE("contour integration on a disc wholly above a tilted receiver's horizon, its frame's "
+          "corners below it",
+          "[lights][aci]") {
+    // bench_bounds --lights mixed --fog, seed 3510: a receiver on an obstacle, tilted so that its
+    // horizon passes 0.08 below the disc's lowest point but above two corners of the disc's
+    // square frame. The walk along the circle measured the horizon along the receiver's normal
+    // instead of in the light's plane (1/0.8 too near), took it for meeting the circle and
+    // left it for a chord: the lit disc came out 0.19% short in every mode, with a bound of 0.
+    const RectLight disc = discLight(Vec3(-0.17879228719589879, -0.030280221590891943, 2.6740394556348175),
+                                     Vec3(0.020837051899717261, -0.061859721515561898, -0.99786732190314043),
+                                     0.823269);
+    const Receiver r{Vec3(1.38717871, -0.729854508, 0.254753319),
+                     glm::normalize(Vec3(0.644211751, 0.50108587, 0.577844418))};
+    bool cornerBelow = false;
+    for (const Vec3& c : disc.polygon()) cornerBelow |= glm::dot(c - r.point, r.normal) < 0.0;
+    REQUIRE(cornerBelow);
+    const double exactF = unoccludedFormFactor(disc, r);
+    Occluder none;
+    Occluder::Query q = none.makeQuery();
+    for (AciMode mode : {AciMode::Paper, AciMode::Arcs, AciMode::Tangent}) {
+        AciSettings s;
+        applyAciMode(s, mode);
+        const Estimate e = contourIntegral(r, disc, q, s);
+        CAPTURE(int(mode), e.formFactor, exactF);
+        CHECK(e.formFactor == Approx(exactF).epsilon(1e-9));
+    }
+    // A sphere's shadow inside it: the passes walk the circle too.
+    const Vec3 mid = 0.5 * (r.point + disc.center) + Vec3(0.3, 0.0, 0.0);
+    const AnalyticSphere sphere{mid, 0.05};
+    Occluder occ({sphere});
+    Occluder::Query qs = occ.makeQuery();
+    const double ref = exactF - (bruteForce(disc, r, 1500) - bruteForce(disc, r, 1500, &sphere));
+    REQUIRE(ref < 0.99 * exactF);
+    for (AciMode mode : {AciMode::Paper, AciMode::Tangent}) {
+        AciSettings s;
+        applyAciMode(s, mode);
+        const Estimate e = contourIntegral(r, disc, qs, s);
+        CAPTURE(int(mode), e.formFactor, ref, exactF, e.errorBound);
+        if (mode == AciMode::Tangent) CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 2e-4 * exactF);
+        // The paper's nine corners may miss the shadow; never more than the lit disc.
+        CHECK(e.formFactor <= exactF * (1.0 + 1e-9));
+    }
+}
+
 TEST_CASE("contour integration on polygons cut by the horizon: exact in every mode, whatever the cut",
           "[lights][aci]") {
     // bench_bounds --lights mixed seed 2803's triangle, seen from a point whose horizon leaves
