@@ -517,3 +517,45 @@ TEST_CASE("two small fogs far apart under a large light: each sampled at its own
     }
     CHECK(dimmed >= 4);  // the balls do dim most of these points
 }
+
+TEST_CASE("a fog over a triangle light's edge, its footprint narrow one way: sampled at its "
+          "narrower extent", "[volume][lights]") {
+    // bench_bounds --lights mixed --fog --light-scale 3, seed 4001: a cloud just under a large
+    // triangle light, over the light's edge. The cubature resolved each footprint by its larger
+    // extent (the box's projection, 0.63 of the frame), so the part of it on the light, a
+    // quarter of the frame wide, had three nodes across and the cloud's shadow fell between
+    // them: ground points 0.4% of the form factor too bright with a bound of 0.
+    const std::string json = R"({
+      "lights": [{"type": "polygon", "vertices": [[-0.19985558057016872, 2.3906059695297683, 2.3353158915516898],
+         [1.2453074904663319, -1.8506699772110018, 3.3237993619338928],
+         [-0.85796907214512019, -2.4874432006529026, 3.3885696144341622]], "radiance": [1, 1, 1]}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
+      "obstacles": [{"type": "fog", "density": 1.9, "falloff": 0.119, "voxel_size": 0.0147,
+        "shape": {"type": "csg", "op": "smooth_union", "blend": 0.17663, "children": [
+          {"type": "sphere", "center": [-0.0756509, -0.445849, 2.52818], "radius": 0.167118},
+          {"type": "sphere", "center": [-0.181336, -0.348394, 2.54554], "radius": 0.135406},
+          {"type": "sphere", "center": [-0.280159, -0.517612, 2.45182], "radius": 0.153238}]}}],
+      "level_set": {"voxel_size": 0.0146}})";
+    const Scene scene = parseScene(json, "seed4001_fog.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    Occluder::Query q = occ.makeQuery();
+    const RectLight& light = scene.lights[0];
+    ContourIntegrator aci;
+    McSettings mc;
+    mc.samples = 1 << 18;
+    int dimmed = 0;
+    for (const Vec3 m : {Vec3(2.52858909, -0.914745207, 0), Vec3(2.32357448, -1.12303042, 0),
+                         Vec3(2.50500654, -0.631212721, 0), Vec3(2.22106717, -1.22717303, 0)}) {
+        const Receiver r{m, kUp};
+        const Estimate e = estimate(Method::Aci, r, light, q, aci, McSettings{});
+        const double ref = estimate(Method::McSolidAngle, r, light, q, aci, mc).formFactor;
+        const double full = unoccludedFormFactor(light, r);
+        const double frac = std::clamp(ref / full, 0.0, 1.0);
+        const double sigma = full * std::sqrt(frac * (1.0 - frac) / mc.samples);
+        CAPTURE(m.x, m.y, e.formFactor, e.errorBound, ref, sigma, full);
+        if (ref < full * (1.0 - 1e-3)) ++dimmed;
+        CHECK(std::abs(e.formFactor - ref) <= 0.001 * full + 4.0 * sigma);
+        CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 1e-4 * full + 4.0 * sigma);
+    }
+    CHECK(dimmed >= 3);  // the cloud does dim them
+}
