@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <utility>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -245,12 +246,32 @@ EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, con
     double span = angleOn(disc, e1, e2, b) - fa;
     while (span <= 0.0) span += 2.0 * kPi;
     if (glm::length(b - a) <= 1e-12 * disc.radius) span = 2.0 * kPi;
-    const int pieces = std::max(1, static_cast<int>(std::ceil(span / (kPi / 8.0))));
-    const double h = span / pieces;
+    // Pieces of at most pi/8, split further while a piece is longer than half its distance
+    // from m (a lower bound: its middle's distance less half its length): the integrand peaks
+    // where the circle passes near m, and a fixed rule there was 3% off (a disc of radius 15
+    // cut by the horizon of a ground point next to where the circle meets the ground:
+    // bench_bounds --lights mixed --light-scale 15, seed 4110).
+    std::vector<std::pair<double, double>> work, pieces;  // (start angle, length)
+    const int first = std::max(1, static_cast<int>(std::ceil(span / (kPi / 8.0))));
+    for (int p = first - 1; p >= 0; --p) work.emplace_back(fa + span * p / first, span / first);
+    while (!work.empty()) {
+        const auto [start, len] = work.back();
+        work.pop_back();
+        const double mid = start + 0.5 * len;
+        const Vec3 c = disc.center + disc.radius * (std::cos(mid) * e1 + std::sin(mid) * e2);
+        const double length = disc.radius * len;
+        const double near = glm::length(c - m) - 0.5 * length;
+        if (length > 0.5 * near && pieces.size() + work.size() < 4096 && len > 1e-9) {
+            work.emplace_back(mid, 0.5 * len);
+            work.emplace_back(start, 0.5 * len);
+            continue;
+        }
+        pieces.emplace_back(start, len);
+    }
     EdgeDerivative out;
-    for (int p = 0; p < pieces; ++p) {
+    for (const auto& [start, h] : pieces) {
         for (int i = 0; i < 16; ++i) {
-            const double phi = fa + h * (p + 0.5 * (gl.x[i] + 1.0));
+            const double phi = start + h * 0.5 * (gl.x[i] + 1.0);
             const double c = std::cos(phi), s = std::sin(phi);
             const Vec3 r = disc.center + disc.radius * (c * e1 + s * e2) - m;
             const Vec3 dr = disc.radius * (-s * e1 + c * e2);
