@@ -294,9 +294,35 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
     // Two rules that agree on one coarse cell can both be wrong (a cloud's edge between its
     // nodes): every cell is split at least this far (4 x 4 cells, 9 x 9 nodes).
     constexpr int kMinDepth = 2;
-    const int n = 1 << (borderDepth + 1);
+    // A cell whose nodes see no attenuation is proven clear when its pyramid of rays meets no
+    // box of the media's support (Query::opticalDepthBound); otherwise it is split, up to two
+    // levels beyond the others, and what stays unproven there counts in the bound (a cloud that
+    // filled little of its box, or a sliver of it on the light, fell between the nodes: seed
+    // 4001 under "Resolution" in docs/volumes.md).
+    const int supportDepth = std::min(std::max(depthCap + 2, borderDepth), 7);
+    // How large a medium's features look on the light: a length l at the fraction t of the way
+    // from the receiver to the light spans l / t there; `reach` is the largest such fraction
+    // over the media's boxes (at most 1). A cell is resolved where it is no wider than
+    // kFeature of the finest features it may hold (MediumSupport::featureLength).
+    constexpr double kFeature = 12.0;
+    // A cell's nodes see little of its media when their largest attenuation is below kWeak of
+    // the most the media in its pyramid could cause (Query::opticalDepthBound).
+    constexpr double kWeak = 0.1;
+    // A cell whose nodes see nothing is not split when what it can hold is at most kFringe of
+    // the unoccluded form factor: that counts in the bound instead.
+    constexpr double kFringe = 1e-3;
+    const double lightSize = std::max(glm::length(light.edgeU), glm::length(light.edgeV));
+    double reach = 0.0;
+    {
+        const double toLight = glm::dot(light.corner - origin, lightNormal);
+        for (const Box3& b : query.mediumBoxes())
+            for (int c = 0; c < 8; ++c)
+                reach = std::max(reach, glm::dot(b.corner(c) - origin, lightNormal) / toLight);
+        reach = std::clamp(reach, 1e-3, 1.0);
+    }
+    const int n = 1 << (supportDepth + 1);
     // Transmittance and the form-factor kernel at the nodes of a (2^D + 1)^2 lattice over the
-    // light (D = maxDepth + 1, a polygon's border cells' depth + 1: the finest cells span two lattice units, so that their edge
+    // light (D = supportDepth + 1: the finest cells span two lattice units, so that their edge
     // midpoints and centres are nodes too), each traced once; the kernel is 0 below the
     // receiver's horizon or outside a shaped light. On an open light T = 1 without a ray outside
     // the footprint; otherwise each node's ray also tells whether an opaque obstacle hides it
@@ -403,13 +429,54 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         const bool unresolved = !resolved(a0, b0, s) || c.depth < kMinDepth;
         const bool varies = std::abs(m.simpson - m.lower) > cubature.tolerance;
         const bool border = m.outside > 0 && m.outside < 9 && m.lo < 1.0;
-        if ((c.depth < depthCap && (unresolved || varies)) || (c.depth < borderDepth && border)) {
+        auto split = [&] {
             const int h = c.size / 2;
             for (int q = 0; q < 4; ++q)
                 work.push_back({c.i0 + (q & 1) * h, c.j0 + (q >> 1) * h, h, c.depth + 1});
+        };
+        if ((c.depth < depthCap && (unresolved || varies)) || (c.depth < borderDepth && border)) {
+            split();
             continue;
         }
-        if (m.lo == 1.0 || !m.weighted) continue;  // no attenuation seen: counted as T = 1
+        // A cell whose emitting nodes are all hidden stays out (an opaque feature between them
+        // is in F(light) exactly; only its share is missed).
+        if (m.hidden > 0 && m.hidden == m.emitting) continue;
+        // The media's support in the cell's pyramid of rays: none proves T = 1 on the whole
+        // cell; where there is some, the cell is split while it is wider than the media's
+        // finest features look on the light.
+        const bool seen = m.lo < 1.0 && m.weighted;  // some node is dimmed
+        const Pyramid pyramid(origin, 0.0, {light.point(a0, b0), light.point(a0 + s, b0),
+                                            light.point(a0 + s, b0 + s), light.point(a0, b0 + s)});
+        double feature = 0.0, depth = 0.0;
+        if (seen) {
+            feature = query.featureLength(pyramid);  // the parts need no test: it meets some
+        } else {
+            depth = query.opticalDepthBound(pyramid, &feature);
+            if (!(depth > 0.0)) continue;  // proven: T = 1 on the whole cell
+        }
+        if (c.depth < supportDepth && s * lightSize > kFeature * feature / reach) {
+            // Coarse for the media's features. Nodes that see a good part of what the pyramid
+            // may hold leave the cell to the variation test; nodes that see none of it, or
+            // little (a cloud's thin edge, its core between them), split it.
+            bool weak = false;
+            if (seen) {
+                depth = query.opticalDepthBound(pyramid);
+                weak = 1.0 - m.lo < kWeak * -std::expm1(-depth);
+            } else if (const std::optional<RectLight> part = subLight(c)) {
+                // Unseen: split unless the most it can hold is a small part of F.
+                weak = -std::expm1(-depth) * unoccludedFormFactor(*part, r) > kFringe * fullOpen;
+            }
+            if (weak) {
+                split();
+                continue;
+            }
+        }
+        if (!seen) {
+            // No attenuation seen, none proven absent: T is somewhere in [exp(-depth), 1].
+            if (const std::optional<RectLight> part = subLight(c))
+                out.errorBound += -std::expm1(-depth) * unoccludedFormFactor(*part, r);
+            continue;
+        }
         attenuated.push_back({c, m});
     }
     out.counts.secondLevelRays += transmittanceRays;  // shadow rays too

@@ -497,6 +497,47 @@ Box3 Occluder::Query::mediaBounds() const {
     return out;
 }
 
+double Occluder::Query::opticalDepthBound(const Pyramid& pyramid, double* featureLength) const {
+    double depth = 0.0;
+    if (featureLength) *featureLength = std::numeric_limits<double>::infinity();
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mMedia ? (*mMedia)[k] : k;
+        const Box3& b = mOccluder->mediumBounds(i);
+        if (b.empty() || !pyramid.mayMeet(b)) continue;
+        const Medium& m = mOccluder->medium(i);
+        const MediumSupport& s = support(*m.grid);
+        // The sum over the parts the pyramid meets, at most the whole medium's longest chord
+        // at its largest density.
+        double sum = 0.0;
+        for (const MediumSupport::Block& block : s.blocks) {
+            if (!pyramid.mayMeet(block.box)) continue;
+            for (uint32_t p = block.first; p < block.first + block.count; ++p) {
+                const MediumSupport::Part& part = s.parts[p];
+                if (pyramid.mayMeetExactly(part.box))
+                    sum += part.maxDensity * glm::length(part.box.hi - part.box.lo);
+            }
+        }
+        if (sum > 0.0) {
+            depth += m.extinction * std::min(sum, s.maxDensity * glm::length(b.hi - b.lo));
+            if (featureLength) *featureLength = std::min(*featureLength, s.featureLength);
+        }
+    }
+    return depth;
+}
+
+double Occluder::Query::featureLength(const Pyramid& pyramid) const {
+    double feature = std::numeric_limits<double>::infinity();
+    const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();
+    for (size_t k = 0; k < count; ++k) {
+        const size_t i = mMedia ? (*mMedia)[k] : k;
+        const Box3& b = mOccluder->mediumBounds(i);
+        if (b.empty() || !pyramid.mayMeet(b)) continue;
+        feature = std::min(feature, support(*mOccluder->medium(i).grid).featureLength);
+    }
+    return feature;
+}
+
 std::vector<Box3> Occluder::Query::mediumBoxes() const {
     std::vector<Box3> out;
     const size_t count = mMedia ? mMedia->size() : mOccluder->mediumCount();

@@ -11,6 +11,8 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <limits>
+#include <map>
 #include <sstream>
 #include <stdexcept>
 
@@ -46,12 +48,14 @@ public:
             mMaxDensity = std::max(0.0, double(range.max()));
             // One voxel of dilation: the interpolation kernel reaches that far.
             if (mMaxDensity > 0.0) mIntersector = std::make_unique<VolumeIntersector>(*mGrid, 1);
+            if (mMaxDensity > 0.0) buildSupport();
         }
     }
 
     const FloatGrid& grid() const { return *mGrid; }
     const FloatGrid::ConstPtr& gridPtr() const { return mGrid; }
     const Box3& bounds() const { return mBounds; }
+    const MediumSupport& support() const { return mSupport; }
     double voxelSize() const { return mVoxelSize; }
     double maxDensity() const { return mMaxDensity; }
     /// Null when nothing is active or every density is 0 (nothing to march).
@@ -63,6 +67,88 @@ private:
     double mVoxelSize = 0.0;
     double mMaxDensity = 0.0;
     std::unique_ptr<VolumeIntersector> mIntersector;  // the master copy: owns the mask tree
+    MediumSupport mSupport;
+
+    // The world bounds of the index box [lo - 1, hi + 1]: where a trilinear sample can see a
+    // voxel of [lo, hi].
+    Box3 worldBox(const openvdb::Coord& lo, const openvdb::Coord& hi) const {
+        Box3 b;
+        const openvdb::Vec3d a = lo.asVec3d() - openvdb::Vec3d(1.0);
+        const openvdb::Vec3d z = hi.asVec3d() + openvdb::Vec3d(1.0);
+        for (int c = 0; c < 8; ++c) {
+            const openvdb::Vec3d p = mGrid->indexToWorld(openvdb::Vec3d(
+                (c & 1) ? z.x() : a.x(), (c & 2) ? z.y() : a.y(), (c & 4) ? z.z() : a.z()));
+            b.extend(Vec3(p.x(), p.y(), p.z()));
+        }
+        return b;
+    }
+
+    void buildSupport() {
+        const FloatGrid::TreeType& tree = mGrid->tree();
+        mSupport.maxDensity = mMaxDensity;
+        if (tree.background() != 0.0f) {  // density between the active voxels too
+            for (auto it = mGrid->cbeginValueAll(); it; ++it)
+                mSupport.maxDensity = std::max(mSupport.maxDensity, double(*it));
+            mSupport.maxDensity = std::max(mSupport.maxDensity, double(tree.background()));
+            mSupport.parts.push_back({mBounds, mSupport.maxDensity});
+            mSupport.blocks.push_back({mBounds, 0, 1});
+            mSupport.featureLength = mVoxelSize;  // not measured: the finest there is
+            return;
+        }
+        // Each leaf's voxels with a positive value (active or not: trilinear samples read
+        // both), keyed by their 32^3 block; then the tiles with a positive value, each a block.
+        std::map<openvdb::Coord, std::vector<MediumSupport::Part>> byBlock;
+        FloatGrid::ConstAccessor acc = mGrid->getConstAccessor();
+        double step = 0.0;  // the largest difference between neighbouring voxels
+        for (auto leaf = tree.cbeginLeaf(); leaf; ++leaf) {
+            openvdb::CoordBBox dense;
+            double most = 0.0;
+            for (openvdb::Index k = 0; k < FloatGrid::TreeType::LeafNodeType::SIZE; ++k) {
+                const float v = leaf->getValue(k);
+                const openvdb::Coord c = leaf->offsetToGlobalCoord(k);
+                for (int a = 0; a < 3; ++a) {
+                    openvdb::Coord d = c;
+                    // Both sides: a leaf's neighbours across its low faces may be background.
+                    d[a] += 1;
+                    step = std::max(step, double(std::abs(acc.getValue(d) - v)));
+                    d[a] -= 2;
+                    step = std::max(step, double(std::abs(acc.getValue(d) - v)));
+                }
+                if (!(v > 0.0f)) continue;
+                dense.expand(c);
+                most = std::max(most, double(v));
+            }
+            if (dense.empty()) continue;
+            const openvdb::Coord o = leaf->origin();
+            byBlock[openvdb::Coord(o.x() >> 5, o.y() >> 5, o.z() >> 5)].push_back(
+                MediumSupport::Part{worldBox(dense.min(), dense.max()), most});
+            mSupport.maxDensity = std::max(mSupport.maxDensity, most);
+        }
+        for (const auto& [key, parts] : byBlock) {
+            MediumSupport::Block block;
+            block.first = uint32_t(mSupport.parts.size());
+            block.count = uint32_t(parts.size());
+            for (const MediumSupport::Part& p : parts) {
+                block.box.extend(p.box);
+                mSupport.parts.push_back(p);
+            }
+            mSupport.blocks.push_back(block);
+        }
+        FloatGrid::ValueAllCIter tile = mGrid->cbeginValueAll();
+        tile.setMaxDepth(FloatGrid::ValueAllCIter::LEAF_DEPTH - 1);  // tiles only
+        for (; tile; ++tile) {
+            if (!(*tile > 0.0f)) continue;
+            mSupport.maxDensity = std::max(mSupport.maxDensity, double(*tile));
+            openvdb::CoordBBox b;
+            tile.getBoundingBox(b);
+            const Box3 w = worldBox(b.min(), b.max());
+            mSupport.blocks.push_back({w, uint32_t(mSupport.parts.size()), 1});
+            mSupport.parts.push_back({w, double(*tile)});
+            step = std::max(step, double(*tile));  // its border with the background
+        }
+        mSupport.featureLength = step > 0.0 ? mSupport.maxDensity / step * mVoxelSize
+                                            : std::numeric_limits<double>::infinity();
+    }
 };
 
 namespace {
@@ -91,6 +177,8 @@ const char* className(openvdb::GridClass c) {
 }
 
 }  // namespace
+
+const MediumSupport& support(const VolumeGrid& volume) { return volume.support(); }
 
 VolumeInfo describe(const VolumeGrid& volume) {
     VolumeInfo info;

@@ -124,14 +124,18 @@ struct MediaCubature {
 /// into 4 x 4 cells, further while the cell is wider than half of a medium's footprint it meets
 /// (the medium's bounding box projected from the receiver onto the light; outside every
 /// footprint T = 1 without a ray; as deep as the smallest footprint needs, up to 6 levels) or
-/// while its Simpson and five-point means differ by more than the tolerance. A cell's visible
+/// while its Simpson and five-point means differ by more than the tolerance. A cell whose pyramid
+/// of rays meets no box of the media's support (MediumSupport) has T = 1, proven; one that meets
+/// some is split, up to two levels more, while it is coarse for the media's feature length and
+/// its nodes see little of the attenuation it may hold (docs/volumes.md, "Support"). A cell's visible
 /// form factor is its closed form when the whole light is visible (or all its nodes are, on a
 /// rectangle light), 0 when all its nodes are hidden, and ACI on the cell as a light of its own
 /// where its nodes disagree. Where no node is dimmed the answer is ACI on the light, unchanged.
 /// The gradient leaves out T's own derivative; the error bound adds each cell's T spread times
-/// its visible form factor. Limits: a medium feature much smaller than the finest cell (light
-/// edge / 2^maxDepth) between nodes can be missed, and an opaque feature between a cell's nodes
-/// misses its (1 - T) share (it is in F_visible(light) exactly).
+/// its visible form factor, and for each cell whose nodes see nothing where the support may
+/// attenuate, the most it can take. Limits: a feature finer than the finest cell between nodes
+/// that do see the medium is only as resolved as the variation test finds it, and an opaque
+/// feature between a cell's nodes misses its (1 - T) share (it is in F_visible(light) exactly).
 Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLight& light,
                          Occluder::Query& query, const MediaCubature& cubature = {});
 

@@ -263,6 +263,18 @@ public:
     /// channel) coefficients at a world point: what the camera's march through media needs.
     double extinctionAt(const Vec3& p, Rgb* scattering = nullptr);
 
+    /// An upper bound on the optical depth (sum of extinction x integral of density) of every
+    /// segment inside `pyramid`, through the media in play: 0 proves that every such segment
+    /// has transmittance 1 exactly (it meets no box of any medium's support, MediumSupport);
+    /// otherwise, for each medium whose support it may meet, its extinction times its largest
+    /// density times its bounds' diagonal (the longest chord). Not a ray: box tests only.
+    /// `featureLength`, when given, receives the smallest MediumSupport::featureLength of the
+    /// media it may meet (infinity when none).
+    double opticalDepthBound(const Pyramid& pyramid, double* featureLength = nullptr) const;
+    /// The smallest MediumSupport::featureLength of the media in play whose bounds `pyramid`
+    /// may meet (infinity when none): opticalDepthBound's, without looking at their parts.
+    double featureLength(const Pyramid& pyramid) const;
+
     /// The union of the bounds of the media in play (the restriction's, if any); empty if none.
     Box3 mediaBounds() const;
     /// The bounds of each medium in play (the restriction's, if any), empty ones left out.

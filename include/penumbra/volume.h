@@ -59,6 +59,35 @@ VolumeGridPtr transformVolume(const VolumeGridPtr& volume, const Mat3& rotation,
 void writeGrids(const std::string& file, const std::vector<LevelSetPtr>& levelSets,
                 const std::vector<std::pair<std::string, VolumeGridPtr>>& volumes, bool halfFloat);
 
+/// Where a medium can attenuate: world-space boxes that together hold every point at which its
+/// trilinear density can be above 0, so that a segment meeting none of them has transmittance 1
+/// exactly. `parts`: per leaf node, the index box of its voxels with a positive density grown by
+/// one voxel (the interpolation kernel's reach), and per tile with a positive value the same;
+/// mapped to world space as the bounds of their corners, each with its largest density (a
+/// segment's optical depth is at most the sum, over the parts it crosses, of that density
+/// times the part's diagonal). `blocks`: the parts grouped by 32^3
+/// voxel blocks (each block's bounds and its range in `parts`), for a coarse test first. A grid
+/// whose background is not 0 has one part, its bounds.
+struct MediumSupport {
+    struct Block {
+        Box3 box;
+        uint32_t first = 0, count = 0;  // parts[first, first + count)
+    };
+    struct Part {
+        Box3 box;
+        double maxDensity = 0.0;  ///< the largest density of its voxels
+    };
+    std::vector<Block> blocks;
+    std::vector<Part> parts;
+    double maxDensity = 0.0;  ///< the largest density (0: nothing to attenuate, no parts)
+    /// The length over which the density can change by `maxDensity`: maxDensity over the
+    /// largest difference between neighbouring voxels per unit length (world; infinite when
+    /// the density is constant). A fog with falloff f has about f; a hard-edged one a voxel.
+    double featureLength = 0.0;
+};
+/// The support of a volume, built with it.
+const MediumSupport& support(const VolumeGrid& volume);
+
 /// The density at a world point (trilinear). Makes an accessor per call: for tests.
 double sampleDensity(const VolumeGrid& volume, const Vec3& pointWS);
 
