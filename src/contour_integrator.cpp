@@ -486,6 +486,32 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         est.blockers = distinct(sc.mBlockers);
         return est;
     }
+    // Each pass's first coverage rays: one towards the middle of each obstacle near the light,
+    // where the contour says the light is seen (below). The middles, as light coordinates: an
+    // obstacle's kernel balls' centres (proven inside it), else its solid sphere's centre,
+    // projected from the ray origin onto the light's plane; only those in front of the light.
+    std::vector<Vec2> middles;
+    if (mSettings.coverage) {
+        const Occluder& occ = query.occluder();
+        const std::vector<uint32_t>* only = query.restriction();
+        const Vec3 origin = r.point + mSettings.rayOffset * r.normal;
+        const Vec3 ln = light.normal();
+        const double toLight = glm::dot(light.corner - origin, ln);
+        auto add = [&](const Vec3& c) {
+            const double along = glm::dot(c - origin, ln);
+            if (!(along * toLight > 0.0) || !(std::abs(along) < std::abs(toLight))) return;
+            const Vec2 uv = light.coordinates(origin + (toLight / along) * (c - origin));
+            if (uv.x >= 0.0 && uv.x <= 1.0 && uv.y >= 0.0 && uv.y <= 1.0) middles.push_back(uv);
+        };
+        const size_t count = only ? only->size() : occ.size();
+        for (size_t k = 0; k < count && middles.size() < kMaxMiddles; ++k) {
+            const size_t i = only ? (*only)[k] : k;
+            if (occ.solidBounds(i).empty()) continue;
+            const std::vector<Occluder::KernelBall>& balls = occ.kernelBalls(i);
+            if (balls.empty()) add(occ.solidCentre(i));
+            for (const Occluder::KernelBall& b : balls) add(b.centre);
+        }
+    }
     int level = 0;
     int coverageRays = 0, repasses = 0, remarks = 0;
     bool unsettled = false;
@@ -523,6 +549,29 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // splitting the squares it lies in; every ray is reused.
         LatticePoint q;
         lat.mScanned = false;
+        // First towards the obstacles' middles the contour has as seen: a shadow on the light
+        // that touches no corner and that the discs did not reach. (Under a thin triangle, a
+        // sphere 0.15 from the light hid 16% of a far ground point's F; every coverage ray went
+        // along the edge of its shadow, each with a disc too small to count, and none into it:
+        // bench_bounds --lights mixed --fog, seed 3501.)
+        for (const Vec2& uv : middles) {
+            const LatticePoint m{static_cast<int>(std::lround(uv.x * lat.Na)),
+                                 static_cast<int>(std::lround(uv.y * lat.Nb))};
+            if (lat.traced(m) || !lat.emits(lat.pointOf(m)) || lat.predicted(m) != 1) continue;
+            ++coverageRays;
+            lat.certifyNext = true;
+            const uint64_t traced = lat.counts.secondLevelRays;
+            const bool vis = lat.visible(m);
+            lat.counts.coverageRays += lat.counts.secondLevelRays - traced;
+            lat.certifyNext = false;
+            if (!vis && repasses < kMaxRepasses) {
+                ++repasses;
+                sc.mMarked.push_back(static_cast<uint32_t>(lat.index(m)));
+                again = true;
+                break;
+            }
+        }
+        if (again) continue;
         while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
             ++coverageRays;
             lat.certifyNext = true;
@@ -627,3 +676,4 @@ Estimate contourIntegral(const Receiver& r, const RectLight& light, Occluder::Qu
 }
 
 }  // namespace penumbra
+
