@@ -1078,7 +1078,7 @@ TEST_CASE("coverage: a crossing that a later sample of the same pass contradicts
 }
 
 TEST_CASE("coverage: obstacles near the light whose shadows touch no corner and the discs never "
-          "reach get a ray at their middles (random scenes 3501 and 4002)",
+          "reach get a ray at their middles (random scenes 3501, 4002 and 2708)",
           "[aci][coverage]") {
     // bench_bounds --lights mixed --fog, seed 3501 (the fogs left out, they do not reach these
     // rays): a level-set sphere 0.15 from a thin triangle light hides 16% of a far ground
@@ -1109,6 +1109,17 @@ TEST_CASE("coverage: obstacles near the light whose shadows touch no corner and 
         {"type": "torus", "center": [-0.0945173, 1.0666, 2.81194], "major_radius": 0.0495, "minor_radius": 0.033, "axis": [-0.299552, -0.664377, -0.684742]}],
       "level_set": {"voxel_size": 0.0165, "half_width": 3}})",
          Vec3(-0.242259, 2.1396251, 0)},
+        // Rect seed 2708: a sphere's shadow holds a corner of the light, seen so obliquely that
+        // the sphere's centre projects 200 frames away; 4% of F, no corner in it.
+        {R"({
+      "lights": [{"corner": [-1.4112040357031972, 0.4972757317704426, 2.7612131255555017],
+         "edge_u": [2.2644001833655372, 0.46511678854378535, -0.46893370996559447],
+         "edge_v": [0.74372668864097891, -2.1428923278330272, 1.465878092803558], "radiance": [1, 1, 1]}],
+      "obstacles": [
+        {"type": "sphere", "center": [-0.320699, 0.673623, 2.29499], "radius": 0.188277},
+        {"type": "cylinder", "center": [-0.404023, 1.62655, 0.153623], "axis": [0.0903344, 0.751853, -0.653113], "radius": 0.0374, "height": 0.240707}],
+      "level_set": {"voxel_size": 0.0187, "half_width": 3}})",
+         Vec3(-0.157069227, 4.01320032, 0)},
     };
     for (const Case& c : cases) {
         const Scene scene = parseScene(c.json, "near_light.json", ".");
