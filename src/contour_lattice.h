@@ -104,8 +104,8 @@ constexpr double kAdaptiveWidth = 16.0;
 constexpr double kFineCellFormFactor = 5e-4;
 constexpr int kMaxFinerLattice = 512;
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
-// Coverage aims its first rays of a pass at the middles of at most this many obstacles near the
-// light (kernel balls' or solid spheres' centres; contour_integrator.cpp).
+// Coverage aims its first rays of a pass at most this many middles of obstacles near the light
+// (where rays pass nearest their kernel balls' and solid spheres' centres; contour_integrator.cpp).
 constexpr size_t kMaxMiddles = 64;
 // Coverage cells, in lattice units: one final dichotomy interval, so that a cell's centre is
 // within half an interval of its every point and the stopping rule on centres (every uncovered
