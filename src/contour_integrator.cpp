@@ -504,21 +504,17 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // frame and none of its first-level points (a sphere's shadow held 4% of F in a corner
         // of the light, seen so obliquely that the centre's projection fell 200 frames away:
         // rect seed 2708).
-        // The light's frame seen from the origin: its centre's direction and the largest
-        // angle from it to a corner (the frame lies within that cone).
+        // The light's frame seen from the origin: its centre's direction and the cosine and
+        // sine of the largest angle from it to a corner (the frame lies within that cone).
         const Vec3 towards = glm::normalize(light.point(0.5, 0.5) - origin);
-        double frameAngle = 0.0;
-        for (int k = 0; k < 4; ++k) {
-            const Vec3 e = glm::normalize(light.point(k & 1, k >> 1) - origin);
-            frameAngle = std::max(frameAngle, std::acos(std::clamp(glm::dot(e, towards), -1.0, 1.0)));
-        }
+        double frameCos = 1.0;
+        for (int k = 0; k < 4; ++k)
+            frameCos = std::min(frameCos, glm::dot(glm::normalize(light.point(k & 1, k >> 1) - origin), towards));
+        const double frameSin = std::sqrt(std::max(0.0, 1.0 - frameCos * frameCos));
         auto add = [&](const Vec3& c, double radius) {
             const Vec3 d = c - origin;
             const double dist = glm::length(d);
             if (!(dist > radius)) return;
-            // A ball whose cone misses the frame's cone: no ray to the light meets it.
-            const double apart = std::acos(std::clamp(glm::dot(d / dist, towards), -1.0, 1.0));
-            if (apart > frameAngle + std::asin(radius / dist)) return;
             const double along = glm::dot(d, ln);
             if (along * toLight > 0.0 && std::abs(along) < std::abs(toLight)) {
                 const Vec2 uv = light.coordinates(origin + (toLight / along) * d);
@@ -527,6 +523,11 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                     return;
                 }
             }
+            // A ball whose cone misses the frame's cone: no ray to the light meets it (the
+            // angle between the axes over the sum of the half-angles, compared by cosines).
+            const double ballSin = radius / dist, ballCos = std::sqrt(1.0 - ballSin * ballSin);
+            const double sumCos = frameCos * ballCos - frameSin * ballSin;
+            if (frameCos * ballCos > frameSin * ballSin && glm::dot(d, towards) < sumCos * dist) return;
             const Vec3 dir = d / dist;
             auto cosAt = [&](double u, double v) {
                 return glm::dot(glm::normalize(light.point(u, v) - origin), dir);
