@@ -498,9 +498,10 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         const Vec3 ln = light.normal();
         const double toLight = glm::dot(light.corner - origin, ln);
         // The light point whose ray passes nearest to a ball's centre (smallest angle from
-        // the centre's direction): the centre's projection when it falls in the light's
-        // frame, else searched over the frame (a 9 x 9 grid, then three finer ones around the
-        // best). Kept when that ray goes through the ball: a shadow can hold a corner of the
+        // the centre's direction): the centre's projection when it falls on the light, else
+        // searched over the frame's emitting points (a 9 x 9 grid, then three finer ones
+        // around the best; a disc's centre projected beside the circle, next to another
+        // obstacle's shadow that took coverage's rays, hid 3% of F: seed 3902). Kept when that ray goes through the ball: a shadow can hold a corner of the
         // frame and none of its first-level points (a sphere's shadow held 4% of F in a corner
         // of the light, seen so obliquely that the centre's projection fell 200 frames away:
         // rect seed 2708).
@@ -518,7 +519,8 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             const double along = glm::dot(d, ln);
             if (along * toLight > 0.0 && std::abs(along) < std::abs(toLight)) {
                 const Vec2 uv = light.coordinates(origin + (toLight / along) * d);
-                if (uv.x >= 0.0 && uv.x <= 1.0 && uv.y >= 0.0 && uv.y <= 1.0) {
+                if (uv.x >= 0.0 && uv.x <= 1.0 && uv.y >= 0.0 && uv.y <= 1.0 &&
+                    lat.emits(light.point(uv.x, uv.y))) {
                     middles.push_back(uv);
                     return;
                 }
@@ -529,8 +531,10 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             const double sumCos = frameCos * ballCos - frameSin * ballSin;
             if (frameCos * ballCos > frameSin * ballSin && glm::dot(d, towards) < sumCos * dist) return;
             const Vec3 dir = d / dist;
+            // Over the part that emits (a disc's or a polygon's frame holds more).
             auto cosAt = [&](double u, double v) {
-                return glm::dot(glm::normalize(light.point(u, v) - origin), dir);
+                const Vec3 q = light.point(u, v);
+                return lat.emits(q) ? glm::dot(glm::normalize(q - origin), dir) : -2.0;
             };
             Vec2 best(0.5);
             double bestCos = -2.0, step = 0.125;
@@ -602,8 +606,14 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // along the edge of its shadow, each with a disc too small to count, and none into it:
         // bench_bounds --lights mixed --fog, seed 3501.)
         for (const Vec2& uv : middles) {
-            const LatticePoint m{static_cast<int>(std::lround(uv.x * lat.Na)),
-                                 static_cast<int>(std::lround(uv.y * lat.Nb))};
+            LatticePoint m{static_cast<int>(std::lround(uv.x * lat.Na)),
+                           static_cast<int>(std::lround(uv.y * lat.Nb))};
+            // Rounded off a shaped light's border: back in, a unit at a time towards the middle
+            // of the frame.
+            for (int k = 0; k < 4 && !lat.emits(lat.pointOf(m)); ++k) {
+                m.a += m.a < lat.Na / 2 ? 1 : m.a > lat.Na / 2 ? -1 : 0;
+                m.b += m.b < lat.Nb / 2 ? 1 : m.b > lat.Nb / 2 ? -1 : 0;
+            }
             if (lat.traced(m) || !lat.emits(lat.pointOf(m)) || lat.predicted(m) != 1) continue;
             ++coverageRays;
             lat.certifyNext = true;

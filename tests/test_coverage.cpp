@@ -1078,7 +1078,7 @@ TEST_CASE("coverage: a crossing that a later sample of the same pass contradicts
 }
 
 TEST_CASE("coverage: obstacles near the light whose shadows touch no corner and the discs never "
-          "reach get a ray at their middles (random scenes 3501, 4002 and 2708)",
+          "reach get a ray at their middles (random scenes 3501, 4002, 2708 and 3902)",
           "[aci][coverage]") {
     // bench_bounds --lights mixed --fog, seed 3501 (the fogs left out, they do not reach these
     // rays): a level-set sphere 0.15 from a thin triangle light hides 16% of a far ground
@@ -1123,6 +1123,17 @@ TEST_CASE("coverage: obstacles near the light whose shadows touch no corner and 
         // The same from farther: there the kernel ball's cone misses the light, the sphere's
         // outer part does not (2.4% of F).
         {"", Vec3(0.530142094, 3.97302434, 0)},
+        // --lights mixed, seed 3902: a sphere's middle falls beside a disc light, in its frame
+        // but not in the circle, and a small torus near the light took every coverage ray: 3%
+        // of F. The middle is now sought among the points that emit.
+        {R"({
+      "lights": [{"type": "disc", "center": [0.29706296260577847, 0.4255964389058067, 3.2320658285777615],
+         "normal": [0.4936927772908011, -0.4540605043306122, -0.7416849061818135], "radius": 0.818019, "radiance": [1, 1, 1]}],
+      "obstacles": [
+        {"type": "sphere", "center": [-0.872817, 0.692175, 1.68585], "radius": 0.331018},
+        {"type": "torus", "center": [-0.973028, 0.354944, 2.19528], "major_radius": 0.0342, "minor_radius": 0.0228, "axis": [-0.491067, 0.6569, -0.572132]}],
+      "level_set": {"voxel_size": 0.0114, "half_width": 3}})",
+         Vec3(-2.97913156, 1.56574345, 0)},
     };
     std::string previous;
     for (const Case& c : cases) {
