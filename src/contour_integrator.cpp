@@ -600,6 +600,21 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // splitting the squares it lies in; every ray is reused.
         LatticePoint q;
         lat.mScanned = false;
+        // One coverage ray, certified; true (the sample marked, `again` set) when it
+        // contradicts the contour and the pass may run again.
+        auto contradicted = [&](LatticePoint p) {
+            ++coverageRays;
+            lat.certifyNext = true;
+            const uint64_t traced = lat.counts.secondLevelRays;
+            const bool vis = lat.visible(p);
+            lat.counts.coverageRays += lat.counts.secondLevelRays - traced;
+            lat.certifyNext = false;
+            if ((vis ? 1 : 0) == lat.predicted(p) || repasses >= kMaxRepasses) return false;
+            ++repasses;
+            sc.mMarked.push_back(static_cast<uint32_t>(lat.index(p)));
+            again = true;
+            return true;
+        };
         // First towards the obstacles' middles the contour has as seen: a shadow on the light
         // that touches no corner and that the discs did not reach. (Under a thin triangle, a
         // sphere 0.15 from the light hid 16% of a far ground point's F; every coverage ray went
@@ -615,33 +630,11 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 m.b += m.b < lat.Nb / 2 ? 1 : m.b > lat.Nb / 2 ? -1 : 0;
             }
             if (lat.traced(m) || !lat.emits(lat.pointOf(m)) || lat.predicted(m) != 1) continue;
-            ++coverageRays;
-            lat.certifyNext = true;
-            const uint64_t traced = lat.counts.secondLevelRays;
-            const bool vis = lat.visible(m);
-            lat.counts.coverageRays += lat.counts.secondLevelRays - traced;
-            lat.certifyNext = false;
-            if (!vis && repasses < kMaxRepasses) {
-                ++repasses;
-                sc.mMarked.push_back(static_cast<uint32_t>(lat.index(m)));
-                again = true;
-                break;
-            }
+            if (contradicted(m)) break;
         }
         if (again) continue;
         while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
-            ++coverageRays;
-            lat.certifyNext = true;
-            const uint64_t traced = lat.counts.secondLevelRays;
-            const bool vis = lat.visible(q);
-            lat.counts.coverageRays += lat.counts.secondLevelRays - traced;
-            lat.certifyNext = false;
-            if ((vis ? 1 : 0) != lat.predicted(q) && repasses < kMaxRepasses) {
-                ++repasses;
-                sc.mMarked.push_back(static_cast<uint32_t>(lat.index(q)));
-                again = true;
-                break;
-            }
+            if (contradicted(q)) break;
         }
         if (!again) {
             // Coverage ran out of rays with most of the light unproven: the evaluation knows
