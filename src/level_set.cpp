@@ -324,6 +324,14 @@ void LevelSet::findSolid() {
     const openvdb::Vec3d cw = mGrid->indexToWorld(centre);
     mSolidCentre = Vec3(cw.x(), cw.y(), cw.z());
     mSolidRadius = (std::sqrt(far2) + grow * std::sqrt(3.0)) * mVoxelSize;
+    // The same, tight: to a 32nd of a voxel from the cells themselves (a sphere's solid sphere
+    // was two voxels wider than the sphere, its shadow's footprint on a light that much wider).
+    openvdb::Vec3d tightLo = lo, tightHi = hi;
+    double tightRadius = mSolidRadius / mVoxelSize;
+    tightenSolid(centre, tightLo, tightHi, tightRadius);
+    mSolidWS = worldBoxOf(*mGrid, openvdb::math::maxComponent(lo, tightLo),
+                          openvdb::math::minComponent(hi, tightHi));
+    mSolidRadius = std::min(mSolidRadius, tightRadius * mVoxelSize);
 
     // The parts: every value <= 0 (inactive voxels and tiles too: the parts, unlike the box,
     // need not enclose the inside) grown by `grow`, clipped to the cells of the box it meets.

@@ -34,11 +34,11 @@ class LevelSet {
     const openvdb::FloatGrid& grid() const { return *mGrid; }
     const openvdb::FloatGrid::ConstPtr& gridPtr() const { return mGrid; }
     const Box3& boundsWS() const { return mBoundsWS; }  ///< empty when no voxel is active
-    /// What may block a ray: the world box and a sphere (centre, radius) around the active
-    /// voxels whose value is <= 0 (the inside of the band, which encloses the inside of the
-    /// surface), grown by 1.25 voxels for the zero crossing between voxel centres. The band's
-    /// outside, up to half_width voxels thick, is left out. boundsWS() and its circumscribed
-    /// sphere when no active voxel is inside.
+    /// What may block a ray: the world box and a sphere (centre, radius) that hold every point
+    /// where the trilinear interpolant is <= 0, bounded from the cells' own values to a 32nd of
+    /// a voxel (level_set_extent.cpp; the sphere's centre is the middle of the inside voxels'
+    /// box). The band's outside, up to half_width voxels thick, is left out. boundsWS() and its
+    /// circumscribed sphere when no voxel is inside.
     const Box3& solidBoundsWS() const { return mSolidWS; }
     const Vec3& solidCentreWS() const { return mSolidCentre; }
     double solidRadius() const { return mSolidRadius; }
@@ -85,8 +85,23 @@ class LevelSet {
         return mCells->built.load(std::memory_order_acquire) ? mCells->tables.get() : nullptr;
     }
 
+    /// A ball wholly inside the surface: the trilinear interpolant is negative all over it, so
+    /// every segment that meets it is blocked (world space).
+    struct InsideBall {
+        Vec3 centre{0.0};
+        double radius = 0.0;
+    };
+    /// Each ball whose centre lies inside, moved towards the deepest point near it and given
+    /// the largest radius the grid's values prove (to a 32nd of a voxel; level_set_extent.cpp);
+    /// balls whose centre is not inside are left out.
+    std::vector<InsideBall> widenInsideBalls(const std::vector<InsideBall>& balls) const;
+
   private:
     void findSolid();
+    // The box and radius (index space, around centreIS) of every point where the interpolant is
+    // <= 0, to a 32nd of a voxel; unchanged when no value is <= 0 (level_set_extent.cpp).
+    void tightenSolid(const openvdb::Vec3d& centreIS, openvdb::Vec3d& loIS, openvdb::Vec3d& hiIS,
+                      double& radiusIS) const;
     struct FarCache {
         std::once_flag once;
         openvdb::FloatGrid::ConstPtr grid;

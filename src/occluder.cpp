@@ -239,7 +239,10 @@ struct Occluder::FarField {
     /// -vc - worst() there lies inside. Greedy: the deepest first, then each next deepest whose
     /// own ball is not mostly inside one already kept (its centre farther than its radius less
     /// half of it from there), at most kKernelBalls, none under a quarter of the deepest's radius
-    /// nor under two fine voxels; each checked inside against the fine grid too.
+    /// nor under two fine voxels; each checked inside against the fine grid too. Then each is
+    /// widened from the fine grid's own values (LevelSet::widenInsideBalls: moved towards the
+    /// deepest point near it, its radius the distance to the nearest cell where the interpolant
+    /// may reach zero), and balls that met at one deepest point are kept once.
     const std::vector<Occluder::KernelBall>& balls() const {
         std::call_once(ballsOnce, [&] {
             const openvdb::FloatGrid& coarse = get();
@@ -285,6 +288,19 @@ struct Occluder::FarField {
                     }
                 if (agreed) ballsValue.push_back(c);
             }
+            // Each kept ball moved to the deepest point near it and given the radius the fine
+            // grid's own values prove (the companion's voxels are four fine ones, and its error
+            // comes off: a level-set sphere's ball was three voxels short of the sphere).
+            std::vector<LevelSet::InsideBall> in;
+            for (const Occluder::KernelBall& b : ballsValue) in.push_back({b.centre, b.radius});
+            std::vector<Occluder::KernelBall> widened;
+            for (const LevelSet::InsideBall& b : levelSet->widenInsideBalls(in))
+                if (b.radius > 2.0 * hf) widened.push_back({b.centre, b.radius});
+            std::stable_sort(widened.begin(), widened.end(),
+                             [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
+                                 return a.radius > b.radius;
+                             });
+            ballsValue = std::move(widened);
         });
         return ballsValue;
     }

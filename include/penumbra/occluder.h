@@ -148,7 +148,8 @@ public:
         double radius = 0.0;
     };
     /// Balls inside obstacle i: an analytic sphere itself; for a level set, up to kKernelBalls
-    /// of the deepest balls its far-field companion proves inside the surface (built with the
+    /// of the deepest balls its far-field companion finds inside the surface, each moved to the
+    /// deepest point near it and as large as the fine grid's values prove (built with the
     /// companion when first asked for); none for other kinds. (Balls of the cell tables'
     /// inside cells, a voxel or two deep, were tried before: no fewer rays; docs/BENCHMARKS.md.)
     const std::vector<KernelBall>& kernelBalls(size_t i) const;
