@@ -414,22 +414,12 @@ std::vector<LevelSet::InsideBall> LevelSet::widenInsideBalls(const std::vector<I
     InsideSearch s;
     s.tol = 1e-4 * mVoxelSize;
     auto acc = mGrid->getConstAccessor();
-    // Tiles: those >= -tol bound the distance as a whole; a tile below -tol holds mixed cells
-    // only along its upper faces (a cell's lowest corner inside it, another past it).
-    std::vector<Coord> tileShell;
+    // Tiles >= -tol bound the distance as a whole (their cells, a voxel around them).
     for (auto it = mGrid->cbeginValueAll(); it; ++it) {
-        if (it.isVoxelValue()) continue;
+        if (it.isVoxelValue() || !(double(*it) >= -s.tol)) continue;
         openvdb::CoordBBox box;
         it.getBoundingBox(box);
-        if (double(*it) >= -s.tol) {
-            s.outerTiles.push_back(box);
-            continue;
-        }
-        const Coord lo = box.min(), hi = box.max();
-        for (int x = lo.x(); x <= hi.x(); ++x)
-            for (int y = lo.y(); y <= hi.y(); ++y)
-                for (int z = lo.z(); z <= hi.z(); ++z)
-                    if (x == hi.x() || y == hi.y() || z == hi.z()) tileShell.push_back(Coord(x, y, z));
+        s.outerTiles.push_back(box);
     }
     auto mixed = [&](const Coord& m, const float v[8]) {
         float lo = v[0], hi = v[0];
@@ -440,32 +430,31 @@ std::vector<LevelSet::InsideBall> LevelSet::widenInsideBalls(const std::vector<I
         std::copy(v, v + 8, c.v);
         s.cells.push_back(c);
     };
-    // Leaves: each with the voxel past its upper faces, so that every cell whose lowest corner
-    // lies in it is read from one block.
+    // Mixed cells have a corner >= -tol: in a leaf, or in a tile >= -tol (bounded above). So
+    // every leaf with the voxels one past it on each side: the cells whose lowest corner lies in
+    // it, and those whose lowest corner lies just below it outside every leaf (in a tile: a
+    // cell reaching from an inside tile into this leaf).
     using Leaf = openvdb::FloatTree::LeafNodeType;
-    constexpr int D = int(Leaf::DIM), W = D + 1;
-    float block[W][W][W];
+    constexpr int D = int(Leaf::DIM), W = D + 2;
+    float block[W][W][W];  // voxel o + (x - 1, y - 1, z - 1)
     for (auto leaf = mGrid->tree().cbeginLeaf(); leaf && s.cells.size() <= kMaxMixedCells; ++leaf) {
         const Coord o = leaf->origin();
         for (int x = 0; x < W; ++x)
             for (int y = 0; y < W; ++y)
-                for (int z = 0; z < W; ++z)
-                    block[x][y][z] = x < D && y < D && z < D
-                                         ? leaf->getValue(Leaf::coordToOffset(o.offsetBy(x, y, z)))
-                                         : acc.getValue(o.offsetBy(x, y, z));
-        float v[8];
-        for (int x = 0; x < D; ++x)
-            for (int y = 0; y < D; ++y)
-                for (int z = 0; z < D; ++z) {
-                    for (int k = 0; k < 8; ++k) v[k] = block[x + (k & 1)][y + ((k >> 1) & 1)][z + (k >> 2)];
-                    mixed(o.offsetBy(x, y, z), v);
+                for (int z = 0; z < W; ++z) {
+                    const bool in = x >= 1 && y >= 1 && z >= 1 && x <= D && y <= D && z <= D;
+                    const Coord c = o.offsetBy(x - 1, y - 1, z - 1);
+                    block[x][y][z] = in ? leaf->getValue(Leaf::coordToOffset(c)) : acc.getValue(c);
                 }
-    }
-    for (const Coord& m : tileShell) {
-        if (s.cells.size() > kMaxMixedCells) break;
         float v[8];
-        for (int k = 0; k < 8; ++k) v[k] = acc.getValue(m.offsetBy(k & 1, (k >> 1) & 1, k >> 2));
-        mixed(m, v);
+        for (int x = 0; x <= D; ++x)
+            for (int y = 0; y <= D; ++y)
+                for (int z = 0; z <= D; ++z) {
+                    const Coord m = o.offsetBy(x - 1, y - 1, z - 1);
+                    if ((x == 0 || y == 0 || z == 0) && acc.probeConstLeaf(m)) continue;  // that leaf's
+                    for (int k = 0; k < 8; ++k) v[k] = block[x + (k & 1)][y + ((k >> 1) & 1)][z + (k >> 2)];
+                    mixed(m, v);
+                }
     }
     if (s.cells.size() > kMaxMixedCells) return balls;
 
