@@ -301,37 +301,50 @@ void LevelSet::tightenSolid(const Vec3d& centreIS, Vec3d& loIS, Vec3d& hiIS, dou
     auto acc = mGrid->getConstAccessor();
     // The box: cells around the values <= tol that could push one of its faces out.
     e.round = false;
-    std::vector<Coord> far;  // cells that could lie partly past the sphere so far
     for (auto it = mGrid->cbeginValueAll(); it; ++it) {
         if (!(double(*it) <= e.tol) || !it.isVoxelValue()) continue;
         const Coord y = it.getCoord();
         const Vec3d p = y.asVec3d();
-        const bool box = e.extendsBox(p - Vec3d(1.0), p + Vec3d(1.0));
-        if (!box && !(farthest2(e.centre, p - Vec3d(1.0), p + Vec3d(1.0)) > e.radius2)) continue;
+        if (!e.extendsBox(p - Vec3d(1.0), p + Vec3d(1.0))) continue;
         for (int c = 0; c < 8; ++c) {
             const Coord m = y.offsetBy(-(c & 1), -((c >> 1) & 1), -(c >> 2));
-            const Vec3d a = m.asVec3d(), b = a + Vec3d(1.0);
-            if (farthest2(e.centre, a, b) > e.radius2) far.push_back(m);
-            if (box && e.extendsBox(a, b)) e.refine(cellAt(acc, m), kSubdivisions);
+            if (e.extendsBox(m.asVec3d(), m.asVec3d() + Vec3d(1.0))) e.refine(cellAt(acc, m), kSubdivisions);
         }
     }
-    // The sphere: those cells once each, the farthest by their values first, so that the
-    // radius is near its end early and most cells are passed over whole.
-    std::sort(far.begin(), far.end());
-    far.erase(std::unique(far.begin(), far.end()), far.end());
-    std::vector<std::pair<double, Coord>> order;
-    for (const Coord& m : far) {
+    // The sphere, in two sweeps over the cells that could reach past it (storing none of them:
+    // a large grid has millions): the first keeps the few whose values allow the farthest
+    // reach; refined first, they bring the radius near its end, and the second sweep then
+    // passes over most cells whole.
+    auto forFarCells = [&](auto&& visit) {
+        for (auto it = mGrid->cbeginValueAll(); it; ++it) {
+            if (!(double(*it) <= e.tol) || !it.isVoxelValue()) continue;
+            const Coord y = it.getCoord();
+            const Vec3d p = y.asVec3d();
+            if (!(farthest2(e.centre, p - Vec3d(1.0), p + Vec3d(1.0)) > e.radius2)) continue;
+            for (int c = 0; c < 8; ++c) {
+                const Coord m = y.offsetBy(-(c & 1), -((c >> 1) & 1), -(c >> 2));
+                if (farthest2(e.centre, m.asVec3d(), m.asVec3d() + Vec3d(1.0)) > e.radius2) visit(m);
+            }
+        }
+    };
+    constexpr size_t kFirst = 16;
+    std::vector<std::pair<double, Coord>> first;  // a min-heap on the bound: the kFirst largest
+    auto smaller = [](const auto& x, const auto& y) { return x.first > y.first; };
+    forFarCells([&](const Coord& m) {
         const double bound = regionFar2(e.centre, cellAt(acc, m), e.tol);
-        if (bound > e.radius2) order.emplace_back(bound, m);
-    }
-    std::sort(order.begin(), order.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+        if (!(bound > e.radius2) || (first.size() == kFirst && !(bound > first.front().first))) return;
+        if (first.size() == kFirst) {
+            std::pop_heap(first.begin(), first.end(), smaller);
+            first.pop_back();
+        }
+        first.emplace_back(bound, m);
+        std::push_heap(first.begin(), first.end(), smaller);
+    });
     e.round = true;
     e.boxToo = false;
-    for (const auto& [bound, m] : order) {
-        const double reach = std::sqrt(e.radius2) + 1e-3;
-        if (bound <= reach * reach) break;
-        e.refine(cellAt(acc, m), kSubdivisions);
-    }
+    std::sort(first.begin(), first.end(), smaller);
+    for (const auto& f : first) e.refine(cellAt(acc, f.second), kSubdivisions);
+    forFarCells([&](const Coord& m) { e.refine(cellAt(acc, m), kSubdivisions); });
     // A tile's cells reach a voxel past it; taken whole (a level set's tiles lie deep inside).
     for (const openvdb::CoordBBox& t : tiles) e.take(t.min().asVec3d() - Vec3d(1.0), t.max().asVec3d() + Vec3d(1.0));
     const double margin = 0.01;
@@ -404,8 +417,9 @@ struct InsideSearch {
     }
 };
 
-// More mixed cells than this (44 bytes each) and the balls are left as the companion made them.
-constexpr size_t kMaxMixedCells = size_t(1) << 22;
+// More mixed cells than this (44 bytes each, 92 MB) and the balls are left as the companion
+// made them.
+constexpr size_t kMaxMixedCells = size_t(1) << 21;
 
 }  // namespace
 
