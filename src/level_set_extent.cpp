@@ -299,38 +299,31 @@ void LevelSet::tightenSolid(const Vec3d& centreIS, Vec3d& loIS, Vec3d& hiIS, dou
     }
     if (!(e.lo.x() <= e.hi.x())) return;  // nothing inside: keep what the caller has
     auto acc = mGrid->getConstAccessor();
-    // The box: cells around the values <= tol that could push one of its faces out.
-    e.round = false;
-    for (auto it = mGrid->cbeginValueAll(); it; ++it) {
-        if (!(double(*it) <= e.tol) || !it.isVoxelValue()) continue;
-        const Coord y = it.getCoord();
-        const Vec3d p = y.asVec3d();
-        if (!e.extendsBox(p - Vec3d(1.0), p + Vec3d(1.0))) continue;
-        for (int c = 0; c < 8; ++c) {
-            const Coord m = y.offsetBy(-(c & 1), -((c >> 1) & 1), -(c >> 2));
-            if (e.extendsBox(m.asVec3d(), m.asVec3d() + Vec3d(1.0))) e.refine(cellAt(acc, m), kSubdivisions);
-        }
-    }
     // The sphere, in two sweeps over the cells that could reach past it (storing none of them:
     // a large grid has millions): the first keeps the few whose values allow the farthest
     // reach; refined first, they bring the radius near its end, and the second sweep then
-    // passes over most cells whole.
-    auto forFarCells = [&](auto&& visit) {
+    // passes over most cells whole. The first sweep also grows the box, over the cells that
+    // could push one of its faces out.
+    auto forFarCells = [&](bool boxToo, auto&& visit) {
         for (auto it = mGrid->cbeginValueAll(); it; ++it) {
             if (!(double(*it) <= e.tol) || !it.isVoxelValue()) continue;
             const Coord y = it.getCoord();
             const Vec3d p = y.asVec3d();
-            if (!(farthest2(e.centre, p - Vec3d(1.0), p + Vec3d(1.0)) > e.radius2)) continue;
+            const bool box = boxToo && e.extendsBox(p - Vec3d(1.0), p + Vec3d(1.0));
+            if (!box && !(farthest2(e.centre, p - Vec3d(1.0), p + Vec3d(1.0)) > e.radius2)) continue;
             for (int c = 0; c < 8; ++c) {
                 const Coord m = y.offsetBy(-(c & 1), -((c >> 1) & 1), -(c >> 2));
-                if (farthest2(e.centre, m.asVec3d(), m.asVec3d() + Vec3d(1.0)) > e.radius2) visit(m);
+                const Vec3d a = m.asVec3d(), b = a + Vec3d(1.0);
+                if (box && e.extendsBox(a, b)) e.refine(cellAt(acc, m), kSubdivisions);
+                if (farthest2(e.centre, a, b) > e.radius2) visit(m);
             }
         }
     };
+    e.round = false;
     constexpr size_t kFirst = 16;
     std::vector<std::pair<double, Coord>> first;  // a min-heap on the bound: the kFirst largest
     auto smaller = [](const auto& x, const auto& y) { return x.first > y.first; };
-    forFarCells([&](const Coord& m) {
+    forFarCells(true, [&](const Coord& m) {
         const double bound = regionFar2(e.centre, cellAt(acc, m), e.tol);
         if (!(bound > e.radius2) || (first.size() == kFirst && !(bound > first.front().first))) return;
         if (first.size() == kFirst) {
@@ -344,7 +337,7 @@ void LevelSet::tightenSolid(const Vec3d& centreIS, Vec3d& loIS, Vec3d& hiIS, dou
     e.boxToo = false;
     std::sort(first.begin(), first.end(), smaller);
     for (const auto& f : first) e.refine(cellAt(acc, f.second), kSubdivisions);
-    forFarCells([&](const Coord& m) { e.refine(cellAt(acc, m), kSubdivisions); });
+    forFarCells(false, [&](const Coord& m) { e.refine(cellAt(acc, m), kSubdivisions); });
     // A tile's cells reach a voxel past it; taken whole (a level set's tiles lie deep inside).
     for (const openvdb::CoordBBox& t : tiles) e.take(t.min().asVec3d() - Vec3d(1.0), t.max().asVec3d() + Vec3d(1.0));
     const double margin = 0.01;
@@ -405,7 +398,10 @@ struct InsideSearch {
     // cheap), with `at` that centre: for finding where a ball can be largest.
     double roughDistance(const Vec3d& c, Vec3d& at) const {
         double best2 = std::numeric_limits<double>::infinity();
-        for (const MixedCell& cell : cells) {
+        // A sample of at most about 50,000 of them: a direction to climb, not a bound.
+        const size_t stride = std::max<size_t>(1, cells.size() / 50000);
+        for (size_t i = 0; i < cells.size(); i += stride) {
+            const MixedCell& cell = cells[i];
             const Vec3d p = cell.m.asVec3d() + Vec3d(0.5);
             const double d2 = (p - c).lengthSqr();
             if (d2 < best2) {
