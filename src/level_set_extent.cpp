@@ -1,13 +1,12 @@
 // Where a level set can block a ray, bounded tightly from the grid's own values: the box and
 // sphere that hold every point where the trilinear interpolant is <= 0 (what the tracer can
-// hit), and balls wholly inside it (what every segment through them hits). Both by subdividing
-// the cells that matter: the interpolant restricted to a sub-box of a cell is trilinear again,
-// so its extremes over the sub-box are among the sub-box's eight corner values.
+// hit), and balls wholly inside it (what every segment through them hits). Both from the cells
+// that matter: the interpolant restricted to a sub-box of a cell is trilinear again, so its
+// extremes over the sub-box are among the sub-box's eight corner values, and its slope along
+// each axis is at most the largest of the four differences along that axis.
 #include <openvdb/openvdb.h>
 
 #include <algorithm>
-#include <cstdio>
-#include <cstdlib>
 #include <cmath>
 #include <limits>
 #include <utility>
@@ -24,7 +23,6 @@ using openvdb::Vec3d;
 
 // Finest sub-box: a 32nd of a voxel along each axis.
 constexpr int kSubdivisions = 5;
-
 
 // A sub-box of a trilinear cell (index space) with its corner values v[(k * 2 + j) * 2 + i] at
 // offsets (i, j, k) from lo.
@@ -225,9 +223,6 @@ struct Extent {
         for (int d = 0; d < 3; ++d)
             if (a[d] < lo[d] || b[d] > hi[d]) return true;
         return false;
-    }
-    bool extends(const Vec3d& a, const Vec3d& b) const {
-        return extendsBox(a, b) || farthest2(centre, a, b) > radius2;
     }
     void take(const Vec3d& a, const Vec3d& b) {
         lo = openvdb::math::minComponent(lo, a);
