@@ -47,6 +47,8 @@ std::vector<Case> cases() {
         {"box", makeBoxLevelSet(Vec3(-0.2, -0.1, -0.15), Vec3(0.17, 0.23, 0.05), kVoxel, 3.0)},
         {"torus", buildLevelSet(ShapeNode{t, Similarity{}}, kVoxel, 3.0, "ring")},
         {"capsule", buildLevelSet(ShapeNode{c, Similarity{}}, kVoxel, 3.0, "pill")},
+        // A narrow band (a voxel and a half): the inside's tiles begin close to the surface.
+        {"thin-band sphere", makeSphereLevelSet(Vec3(0.0021, 0.0043, -0.0017), 0.2, kVoxel, 1.5)},
     };
 }
 
