@@ -92,8 +92,10 @@ class LevelSet {
         double radius = 0.0;
     };
     /// Each ball whose centre lies inside, moved towards the deepest point near it and given
-    /// the largest radius the grid's values prove (to a 32nd of a voxel; level_set_extent.cpp);
-    /// balls whose centre is not inside are left out.
+    /// the radius its cells' values prove (a lower bound on the distance to every point where
+    /// the interpolant may reach zero, from each cell's corner values and slopes;
+    /// level_set_extent.cpp); balls whose centre is not inside are left out. Returned unchanged
+    /// for a grid with more than about 2 million cells with corners on both sides of zero.
     std::vector<InsideBall> widenInsideBalls(const std::vector<InsideBall>& balls) const;
 
   private:

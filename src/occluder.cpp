@@ -256,10 +256,10 @@ struct Occluder::FarField {
                 const openvdb::Vec3d w = coarse.indexToWorld(it.getCoord());
                 candidates.push_back({Vec3(w.x(), w.y(), w.z()), depth * (1.0 - 1e-6)});
             }
-            std::stable_sort(candidates.begin(), candidates.end(),
-                             [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
-                                 return a.radius > b.radius;
-                             });
+            auto deeper = [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
+                return a.radius > b.radius;
+            };
+            std::stable_sort(candidates.begin(), candidates.end(), deeper);
             // The fine grid must agree that the ball is inside, at its centre and at six points
             // nine tenths of the way to its surface: a companion meshed from a surface that is
             // not closed could call some outside region inside, and a ball there would hide
@@ -296,10 +296,7 @@ struct Occluder::FarField {
             std::vector<Occluder::KernelBall> widened;
             for (const LevelSet::InsideBall& b : levelSet->widenInsideBalls(in))
                 if (b.radius > 2.0 * hf) widened.push_back({b.centre, b.radius});
-            std::stable_sort(widened.begin(), widened.end(),
-                             [](const Occluder::KernelBall& a, const Occluder::KernelBall& b) {
-                                 return a.radius > b.radius;
-                             });
+            std::stable_sort(widened.begin(), widened.end(), deeper);
             ballsValue = std::move(widened);
         });
         return ballsValue;
