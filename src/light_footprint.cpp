@@ -148,7 +148,7 @@ double LightFootprints::ballWidth(const Vec3& centre, double radius) const {
 }
 
 double LightFootprints::narrowestWidth(const Occluder& occ) const {
-    if (!mBounded) return 0.0;
+    if (!mBounded) return -1.0;
     double narrowest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
         if (f.u1 < 0.0 || f.u0 > 1.0 || f.v1 < 0.0 || f.v0 > 1.0) continue;

@@ -43,7 +43,7 @@ public:
     /// widest footprint (0 with none: a level set may be thin anywhere). `occ` is the occluder
     /// build() was given. An estimate of how small a shadow on the light can be, for choosing a
     /// lattice (AciSettings::adaptiveSteps), not a bound. Infinite when no footprint meets the
-    /// light, 0 when they are not bounded.
+    /// light, negative when they are not bounded.
     double narrowestWidth(const Occluder& occ) const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin

@@ -990,6 +990,46 @@ TEST_CASE("tangent mode: a point on a level-set torus that its own tube half hid
     CHECK(std::abs(e.formFactor - ref) <= e.errorBound);
 }
 
+TEST_CASE("a finer lattice under a huge light also when a thin level set has no kernel balls "
+          "(random scene 6702)",
+          "[aci][coverage]") {
+    // bench_bounds --lights mixed --light-scale 8, seed 6702: a ground point under a triangle
+    // 18 across whose plane passes 3 from it, a level-set torus's shadow a few cells wide. The
+    // finer lattice such points take was turned off by a capsule two voxels thick elsewhere in
+    // the light's view: too thin for kernel balls, its footprint's width is 0, which until
+    // 2026-12-06 also meant "footprints unbounded". 1.4% of F0 low, within its bound; the
+    // reference is the estimator two dichotomy steps finer (0.0685870 against a 2^20-ray
+    // Monte Carlo's 0.0685853).
+    const std::string json = R"({
+      "lights": [{"type": "polygon", "vertices": [[-5.539381076280954, -2.375655325448981, -4.4950696320644274],
+                                                  [-3.9209569422028014, 6.960859345568794, -0.844795118552963],
+                                                  [6.214453775403822, 0.7113576564529882, 10.711865016084435]]}],
+      "obstacles": [{"type": "torus", "center": [-0.807442, -1.61726, 0.365975], "major_radius": 0.22822,
+                     "minor_radius": 0.0669957, "axis": [-0.936841, 0.349683, -0.00711527]},
+                    {"type": "capsule", "a": [1.30428, -1.27527, 3.4957], "b": [0.988364, -1.39213, 3.57668],
+                     "radius": 0.025747}],
+      "level_set": {"voxel_size": 0.0119, "half_width": 3}
+    })";
+    const Scene scene = parseScene(json, "seed6702.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const RectLight& light = scene.lights[0];
+    const Receiver r{Vec3(0.301422709, -3.18040308, 0.0), kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(occ, r.point, 1e-9);
+    const Estimate e = ContourIntegrator(s).evaluate(r, light, q);
+    AciSettings fine = s;
+    fine.steps = s.steps + 2;
+    const double ref = ContourIntegrator(fine).evaluate(r, light, q).formFactor;
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(e.formFactor, e.errorBound, ref, full);
+    REQUIRE(ref < 0.98 * full);  // the torus shadows the point
+    CHECK(std::abs(e.formFactor - ref) <= 0.002 * full);
+    CHECK(std::abs(e.formFactor - ref) <= e.errorBound);
+}
+
 TEST_CASE("a light far larger than its distance: small shadows where its cells weigh most are located",
           "[aci][coverage]") {
     // An 80 x 80 light 4 above the ground, two small exact spheres between: at the default
