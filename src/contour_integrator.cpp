@@ -639,6 +639,13 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         if (again) continue;
         while (lat.nextCoverageSample(q, coverageRays >= mSettings.maxCoverageRays)) {
             if (contradicted(q)) break;
+            // A visible coverage ray far from the located contour whose certificate proves
+            // less than a lattice unit passes next to a silhouette the contour does not have:
+            // one more ray just past where its clearance puts that silhouette.
+            if (mSettings.tangentContour && coverageRays < mSettings.maxCoverageRays) {
+                const LatticePoint aim = lat.acrossNearSilhouette(q);
+                if (aim.a >= 0 && contradicted(aim)) break;
+            }
         }
         if (!again) {
             // Coverage ran out of rays with most of the light unproven: the evaluation knows

@@ -112,6 +112,10 @@ constexpr size_t kMaxMiddles = 64;
 // point within coverageGap intervals of proven ground) holds for points. With cells of 8 units a
 // shadow of 1.8 intervals' radius could hide between centres (seed 17 of the random sphere scenes).
 constexpr double kCoverageCell = 2.0;
+// Coverage: a visible ray proving less than a lattice unit with no located contour piece within
+// this many units aims one more ray across the silhouette its clearance predicts
+// (Lattice::acrossNearSilhouette).
+constexpr double kSilhouetteAimReach = 4.0;
 constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
 // A ray passing closest to a surface within this many ray offsets of its start grazes the
 // receiver's own surface (untrustedTangent).
@@ -370,6 +374,7 @@ struct ContourIntegrator::Lattice {
     int obstacleOf(LatticePoint q) const;
     int hiderOf(LatticePoint q) const;
     double newtonAlong(LatticePoint q, const Vec3& from, const Vec3& dir) const;
+    LatticePoint acrossNearSilhouette(LatticePoint q);
     double fieldRoot(LatticePoint q, const Vec3& from, const Vec3& dir, double xq, double guess,
                      double lo, double hi, bool visibleLo);
     Vec3 grazingPlane(LatticePoint q, const Vec3& onContour) const;

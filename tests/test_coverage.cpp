@@ -1030,6 +1030,39 @@ TEST_CASE("a finer lattice under a huge light also when a thin level set has no 
     CHECK(std::abs(e.formFactor - ref) <= e.errorBound);
 }
 
+TEST_CASE("coverage: a ray that proves almost nothing far from the contour aims across the "
+          "silhouette its clearance predicts (random scene 6516)",
+          "[aci][coverage]") {
+    // bench_bounds --lights mixed --fog, seed 6516 (its fog and the obstacles that shadow
+    // nothing here left out): from a ground point, a level-set capsule's shadow is a narrow
+    // patch on the light's border that no pass located. The rays next to it prove discs under a
+    // lattice unit, and coverage spent its 48 rays on every lattice point of the cells beside
+    // the patch, all visible: 0.66% of F0 missed (within the bound). A small box's shadow
+    // elsewhere makes the footprints unbounded (its solid box reaches behind the ray origin as
+    // seen from the light), so nothing but rays proves anything.
+    const std::string json = R"({
+      "lights": [{"corner": [-1.2044428619124607, 0.31151304263630913, 2.5173444645283274],
+                  "edge_u": [2.2803819241965155, -0.8451491989104838, 1.2212442881188148],
+                  "edge_v": [-0.5972056901511716, -0.6414631128317584, 0.6712211740784001]}],
+      "obstacles": [{"type": "capsule", "a": [0.564353, -0.398268, 3.35129], "b": [0.0570231, -0.677546, 3.50922],
+                     "radius": 0.0652855},
+                    {"type": "box", "center": [0, 0, 0], "size": [0.0599942, 0.0471, 0.175712],
+                     "transform": {"rotate_deg": [29.3248, 117.484, 11.1902],
+                                   "translate": [0.00586811, 0.00877832, 2.78243]}}],
+      "level_set": {"voxel_size": 0.0157, "half_width": 3}
+    })";
+    const Scene scene = parseScene(json, "seed6516.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const AgainstMonteCarlo m =
+        againstMonteCarlo(occ, q, scene.lights[0], {Vec3(1.60739814, 2.37934297, 0.0), kUp}, 1 << 18);
+    CAPTURE(m.aci.formFactor, m.aci.errorBound, m.ref, m.sigma, m.full);
+    REQUIRE(m.ref < 0.996 * m.full);  // the capsule shadows the point
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= 0.002 * m.full + 4.0 * m.sigma);
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound + 4.0 * m.sigma);
+}
+
 TEST_CASE("a light far larger than its distance: small shadows where its cells weigh most are located",
           "[aci][coverage]") {
     // An 80 x 80 light 4 above the ground, two small exact spheres between: at the default
