@@ -615,8 +615,10 @@ bool ContourIntegrator::Lattice::markedInside(int x0, int y0, int s, int uniform
 
 // Whether a traced sample disagrees with a leaf that holds it (inside or on its border),
 // farther than epsilon from that leaf's contour: a shadow or window the pass stepped over
-// (say, two crossings of one side found from two squares of different sizes).
-bool ContourIntegrator::Lattice::contradicts(uint32_t idx) const {
+// (say, two crossings of one side found from two squares of different sizes). Unless
+// `farOnly`, also a sample on a contour leaf's border that the leaf's contour puts on the other
+// side however near (a vertex placed before the sample was traced: the next pass narrows it).
+bool ContourIntegrator::Lattice::contradicts(uint32_t idx, bool farOnly) const {
     const LatticePoint q{static_cast<int>(idx % (Na + 1)), static_cast<int>(idx / (Na + 1))};
     const float sv = scratch.mSample[idx];
     if (sv == kBelowHorizon) return false;
@@ -628,6 +630,7 @@ bool ContourIntegrator::Lattice::contradicts(uint32_t idx) const {
         double best;
         const int side = nearestSide(leaf, pq, best);
         if (side != answer && best > epsWorld) return true;
+        if (farOnly) return false;
         // On the leaf's own border a vertex that the sample contradicts was placed before
         // the sample was traced (a neighbour's dichotomy): the next pass narrows it.
         const bool onBorder = q.a == leaf.x0 || q.a == leaf.x0 + leaf.s || q.b == leaf.y0 ||

@@ -104,6 +104,9 @@ constexpr double kAdaptiveWidth = 16.0;
 constexpr double kFineCellFormFactor = 5e-4;
 constexpr int kMaxFinerLattice = 512;
 constexpr int kMaxRepasses = 64;        // coverage passes at one level after the first
+// Times an evaluation starts again one step finer because a sample contradicts every contour
+// its lattice allows (evaluate()).
+constexpr int kMaxFinerRedos = 2;
 // Coverage aims its first rays of a pass at most this many middles of obstacles near the light
 // (where rays pass nearest their kernel balls' and solid spheres' centres; contour_integrator.cpp).
 constexpr size_t kMaxMiddles = 64;
@@ -420,7 +423,7 @@ struct ContourIntegrator::Lattice {
     void gatherNear(int x0, int y0, int s);
     bool nextCoverageSample(LatticePoint& out, bool giveUp);
     bool markedInside(int x0, int y0, int s, int uniform) const;
-    bool contradicts(uint32_t idx) const;
+    bool contradicts(uint32_t idx, bool farOnly = false) const;
     int nearestSide(const Leaf& leaf, const Vec3& p, double& best) const;
     int predicted(LatticePoint q) const;
     double junctionAllowance(const Vertex& a, const Vertex& b, const LatticePoint c[4]) const;

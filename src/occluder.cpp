@@ -302,7 +302,24 @@ struct Occluder::FarField {
         return ballsValue;
     }
 
+    /// The fine grid's active voxel of least value (Occluder::deepestPoint).
+    const Occluder::KernelBall& deepest() const {
+        std::call_once(deepestOnce, [&] {
+            const openvdb::FloatGrid& fine = levelSet->grid();
+            float least = std::numeric_limits<float>::infinity();
+            openvdb::Coord at;
+            for (auto it = fine.cbeginValueOn(); it; ++it)
+                if (*it < least) least = *it, at = it.getCoord();
+            if (!(least < 0.0f)) return;
+            const openvdb::Vec3d w = fine.indexToWorld(at);
+            deepestValue = {Vec3(w.x(), w.y(), w.z()), -double(least)};
+        });
+        return deepestValue;
+    }
+
     LevelSetPtr levelSet;
+    mutable std::once_flag deepestOnce;
+    mutable Occluder::KernelBall deepestValue;
     mutable std::once_flag errorOnce;
     mutable std::unique_ptr<CompanionError> errorValue;
     mutable std::once_flag ballsOnce;
@@ -312,6 +329,10 @@ struct Occluder::FarField {
 const std::vector<Occluder::KernelBall>& Occluder::kernelBalls(size_t i) const {
     if (mFar[i]) return mFar[i]->balls();
     return mSphereKernels[i];
+}
+
+Occluder::KernelBall Occluder::deepestPoint(size_t i) const {
+    return mFar[i] ? mFar[i]->deepest() : KernelBall{};
 }
 
 Box3 Occluder::kernelBox(size_t i) const {

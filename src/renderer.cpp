@@ -991,6 +991,7 @@ private:
         mTs.stats.footprintClearances += e.counts.footprintClearances;
         if (!isMonteCarlo(mSettings.method)) ++mTs.stats.aciEvaluations;
         mTs.stats.coarserEvaluations += e.counts.coarserEvaluations;
+        mTs.stats.finerRedos += e.counts.finerRedos;
         store(x, e.formFactor, isMonteCarlo(mSettings.method) ? Vec3(0.0) : e.gradient,
               e.errorBound);
         return Sample{e.g, e.gradient, e.errorBound, {}, 0, std::move(e.blockers)};
@@ -1010,6 +1011,7 @@ private:
         RenderStats& st = mTs.stats;
         ++st.aciEvaluations;
         st.coarserEvaluations += e.counts.coarserEvaluations;
+        st.finerRedos += e.counts.finerRedos;
         st.firstLevelRays += e.counts.firstLevelRays;
         st.secondLevelRays += e.counts.secondLevelRays;
         st.coverageRays += e.counts.coverageRays;

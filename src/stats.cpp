@@ -32,6 +32,7 @@ void RenderStats::merge(const RenderStats& o) {
     closedFormPixels += o.closedFormPixels;
     aciEvaluations += o.aciEvaluations;
     coarserEvaluations += o.coarserEvaluations;
+    finerRedos += o.finerRedos;
     patternEvaluations += o.patternEvaluations;
     interpolatedPixels += o.interpolatedPixels;
     rowPairPixels += o.rowPairPixels;
@@ -73,6 +74,7 @@ std::string RenderStats::toJson() const {
     j["closed_form_pixels"] = closedFormPixels;
     j["aci_evaluations"] = aciEvaluations;
     j["coarser_evaluations"] = coarserEvaluations;
+    j["finer_redos"] = finerRedos;
     j["pattern_evaluations"] = patternEvaluations;
     j["interpolated_pixels"] = interpolatedPixels;
     j["row_pair_pixels"] = rowPairPixels;

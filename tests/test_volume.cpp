@@ -571,6 +571,34 @@ TEST_CASE("a fog over a triangle light's edge, its footprint narrow one way: sam
     CHECK(core == 7);
 }
 
+TEST_CASE("a sharp-edged fog whose footprint is the whole light: cells split where their nodes "
+          "spread, past the footprints' depth", "[volume][lights]") {
+    // bench_bounds --lights mixed --light-scale 8 --fog, seed 7006 (the fog that dims these
+    // points alone): a cloud of density 4.7 with no falloff under a triangle light 18 across,
+    // tilted so that the cloud's box reaches behind the light's plane and its footprint is the
+    // whole frame, so the footprints asked for cells of an eighth of it. The cloud's edge ran
+    // between the nodes of a cell a quarter of the frame wide whose two rules agreed by chance
+    // (T from 0.42 to 1 over its nodes): ground points 1.7-7% of F0 off, within their bounds.
+    // Cells whose nodes' spread could hold more than kSpread of F0 now split further: within
+    // 0.15% (measured).
+    const std::string json = R"({
+      "lights": [{"type": "polygon", "vertices": [[-1.7009673435047183, -7.700525596455911, -0.3976752441712832],
+         [1.284052320816973, 7.250829130778729, 6.462106049318102],
+         [3.1974643897942303, -5.329579377386095, 5.833560870615137]], "radiance": [1, 1, 1]}],
+      "receivers": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]}],
+      "obstacles": [{"type": "fog", "density": 4.7, "falloff": 0, "voxel_size": 0.0254,
+        "shape": {"type": "csg", "op": "smooth_union", "blend": 0.305022, "children": [
+          {"type": "sphere", "center": [-0.279521, 0.266417, 1.18502], "radius": 0.2372},
+          {"type": "sphere", "center": [0.310864, 0.663787, 1.16451], "radius": 0.239325},
+          {"type": "sphere", "center": [0.362906, 0.513468, 1.0845], "radius": 0.277537}]}}],
+      "level_set": {"voxel_size": 0.0156}})";
+    const Scene scene = parseScene(json, "seed7006_fog.json", ".");
+    const int dimmed = checkGroundThroughMedia(
+        scene, {Vec3(-0.134743261, 1.03740714, 0), Vec3(-0.781889794, 1.0616935, 0),
+                Vec3(-0.451356638, 0.58121648, 0)}, 0.003);
+    CHECK(dimmed == 3);
+}
+
 TEST_CASE("a medium's support: a pyramid that meets none of its boxes holds only segments of "
           "transmittance 1, and no segment in one that does is dimmed beyond its depth bound",
           "[volume]") {

@@ -61,6 +61,10 @@ struct AciCounts {
     /// Evaluations that took one dichotomy step fewer (AciSettings::adaptiveSteps): 0 or 1 per
     /// evaluation.
     uint64_t coarserEvaluations = 0;
+    /// Evaluations redone one dichotomy step finer, their samples carried over, because a sample
+    /// contradicted every contour the coarser lattice allowed (a shadow or window thinner than a
+    /// lattice unit): 0, 1 or 2 per evaluation.
+    uint64_t finerRedos = 0;
     int maxDepth = 0;              ///< deepest quadtree refinement reached
 
     uint64_t shadowRays() const { return firstLevelRays + secondLevelRays; }
@@ -76,6 +80,7 @@ struct AciCounts {
         squaresSplitForCoverage += o.squaresSplitForCoverage;
         restarts += o.restarts;
         coarserEvaluations += o.coarserEvaluations;
+        finerRedos += o.finerRedos;
         maxDepth = maxDepth > o.maxDepth ? maxDepth : o.maxDepth;
     }
 };

@@ -56,6 +56,9 @@ struct RenderStats {
     uint64_t aciEvaluations = 0;             ///< full contour integrations
     /// Of those, the ones on a lattice one dichotomy step coarser (RenderSettings::adaptiveSteps)
     uint64_t coarserEvaluations = 0;
+    /// Times an evaluation started again one step finer, its samples carried over, because a
+    /// sample contradicted every contour its lattice allowed (AciCounts::finerRedos)
+    uint64_t finerRedos = 0;
     uint64_t patternEvaluations = 0;         ///< pixel-light pairs where only the pattern was traced
     uint64_t interpolatedPixels = 0;         ///< pixel-light pairs whose value was interpolated
     uint64_t rowPairPixels = 0;  ///< of those, on odd rows between the rows above and below
