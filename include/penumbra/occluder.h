@@ -51,6 +51,11 @@ struct Clearance {
     /// Signed distances are 1-Lipschitz, so moving the segment's start by less than |bound|
     /// (its end fixed) cannot change the answer: the renderer reuses first-level rays on that.
     double bound = 0.0;
+    /// Unknown because the segment only leaves this obstacle: its distance grows all the way
+    /// from the start (a ray from a receiver point on the obstacle's own surface). It comes no
+    /// nearer than where it starts, so it has no silhouette near the segment, and it does not
+    /// hide the other obstacles' distances (Occluder::Query::clearance).
+    bool leaving = false;
     bool known() const { return std::isfinite(distance); }
 };
 
