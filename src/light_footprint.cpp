@@ -42,6 +42,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
     mFootprints.clear();
     mKernels.clear();
     mBounded = false;
+    mUnboundedThin = false;
     mLight = &light;
     mOrigin = origin;
     const Vec3 n = light.normal();
@@ -60,7 +61,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         v = uv.y;
         return true;
     };
-    bool bounded = true;
+    bool bounded = true, unboundedThin = true;
     const size_t count = only ? only->size() : occ.size();
     for (size_t k = 0; k < count; ++k) {
         const size_t i = only ? (*only)[k] : k;
@@ -100,13 +101,17 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             }
         }
         // The footprint.
-        if (!bounded) continue;
         const Box3& box = occ.solidBounds(i);
         if (box.empty()) continue;  // nothing of it can block
         Footprint f;
         f.obstacle = int(i);
         double u[8], v[8];
-        for (int c = 0; c < 8 && bounded; ++c) bounded = project(box.corner(c), false, u[c], v[c]);
+        bool projects = true;
+        for (int c = 0; c < 8 && projects; ++c) projects = project(box.corner(c), false, u[c], v[c]);
+        if (!projects) {
+            bounded = false;
+            unboundedThin = unboundedThin && occ.voxelSize(i) > 0.0 && occ.kernelBalls(i).empty();
+        }
         if (!bounded) continue;
         f.n = hull(u, v, f.u, f.v);
         normals(f.u, f.v, f.n, f.nu, f.nv);
@@ -129,6 +134,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
     }
     if (!bounded) mFootprints.clear();
     mBounded = bounded;
+    mUnboundedThin = !bounded && unboundedThin;
     return bounded;
 }
 
@@ -148,7 +154,7 @@ double LightFootprints::ballWidth(const Vec3& centre, double radius) const {
 }
 
 double LightFootprints::narrowestWidth(const Occluder& occ) const {
-    if (!mBounded) return -1.0;
+    if (!mBounded) return mUnboundedThin ? 0.0 : -1.0;
     double narrowest = std::numeric_limits<double>::infinity();
     for (const Footprint& f : mFootprints) {
         if (f.u1 < 0.0 || f.u0 > 1.0 || f.v1 < 0.0 || f.v0 > 1.0) continue;

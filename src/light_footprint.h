@@ -43,7 +43,9 @@ public:
     /// widest footprint (0 with none: a level set may be thin anywhere). `occ` is the occluder
     /// build() was given. An estimate of how small a shadow on the light can be, for choosing a
     /// lattice (AciSettings::adaptiveSteps), not a bound. Infinite when no footprint meets the
-    /// light, negative when they are not bounded.
+    /// light, negative when they are not bounded, except 0 when every obstacle whose footprint
+    /// is unbounded (the origin on or beside it) is a level set too thin for kernel balls: a
+    /// level set as thin anywhere as the bounded ones' rule assumes.
     double narrowestWidth(const Occluder& occ) const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
@@ -130,6 +132,7 @@ private:
     std::vector<Footprint> mFootprints;
     std::vector<Kernel> mKernels;
     bool mBounded = false;
+    bool mUnboundedThin = false;  // unbounded, and only by level sets without kernel balls
     const RectLight* mLight = nullptr;
     Vec3 mOrigin{0.0};
     double mToLight = 0.0;  // the origin's signed distance to the light's plane

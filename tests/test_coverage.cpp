@@ -1163,7 +1163,11 @@ TEST_CASE("coverage: a window through a torus' hole on a light far larger than i
     const double ref = m.ref, full = m.full, sigma = m.sigma;
     CAPTURE(e.formFactor, e.errorBound, ref, sigma, full, e.counts.coverageRays);
     REQUIRE(ref > 0.5 * full);  // the window holds most of the form factor
-    CHECK(std::abs(e.formFactor - ref) <= 0.02 * full + 4.0 * sigma);
+    // 2% until 2026-12-06, when the point came out 1.3% of F0 low: the receiver lies on a level
+    // set too thin for kernel balls, whose own footprint is unbounded, and the finer lattice for
+    // lights much larger than their distance did not apply. It does now (a width of 0, as for a
+    // thin level set that projects): 0.06%.
+    CHECK(std::abs(e.formFactor - ref) <= 0.005 * full + 4.0 * sigma);
     CHECK(std::abs(e.formFactor - ref) <= e.errorBound + 4.0 * sigma);
 }
 
