@@ -100,7 +100,9 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
                 if (ker.n >= 3) mKernels.push_back(ker);
             }
         }
-        // The footprint.
+        // The footprint (once unbounded by an obstacle that is not a thin level set, nothing
+        // more is asked of the others).
+        if (!bounded && !unboundedThin) continue;
         const Box3& box = occ.solidBounds(i);
         if (box.empty()) continue;  // nothing of it can block
         Footprint f;
