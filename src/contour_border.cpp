@@ -113,6 +113,7 @@ bool ContourIntegrator::Lattice::emitBorder(const Vertex& a, const Vertex& b, bo
             if (!dryRun) {
                 const EdgeDerivative e = discArcG(light, x, y, rec.point);
                 g += e.g;
+                scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
                 if (self.mSettings.gradient) dg += e.dg;
             }
             if (next == kClipDisc) return true;

@@ -63,11 +63,13 @@ void ContourIntegrator::Lattice::emitWhole() {
         emit(from, to);
         const EdgeDerivative e = discArcG(light, to, from, rec.point);
         g += e.g;
+        scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
         if (self.mSettings.gradient) dg += e.dg;
     } else if (light.shape == LightShape::Disc) {
         const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
         const EdgeDerivative e = discArcG(light, start, start, rec.point);
         g += e.g;
+        scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
         if (self.mSettings.gradient) dg += e.dg;
     } else {
         const std::vector<Vec3> poly = light.polygon();

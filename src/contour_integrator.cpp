@@ -173,6 +173,8 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     scratch.mTraced.clear();
     scratch.mTracedDiscs.clear();
     scratch.mAllTraced.clear();
+    scratch.mPassEdges.clear();
+    scratch.mPassEdgesValid = true;
     scratch.mMarked.clear();
     scratch.mBlockers.clear();
     if (scratch.mStamp.size() < size) {
@@ -378,6 +380,10 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                                      Occluder::Query& query) {
     // (Only a disc on its own square: a part of one, as aciThroughMedia's cells would be, is
     // integrated as it is.)
+    if (mRecord && !mFanPiece) {  // a new light: what its pieces keep replaces the last
+        mContour.clear();
+        mContourValid = true;
+    }
     const bool wholeDisc = light.shape == LightShape::Disc &&
                            glm::length(light.corner + 0.5 * (light.edgeU + light.edgeV) - light.center) <=
                                1e-9 * light.radius &&
@@ -521,6 +527,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             est.counts = lat.counts;  // (its bound, 0 when asked for, was set above)
             est.counts.coarserEvaluations = coarser;
             est.blockers = distinct(sc.mBlockers);
+            keepContour();
             return est;
         }
         // Each pass's first coverage rays: one towards the middle of each obstacle near the light,
@@ -784,8 +791,17 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         est.counts = lat.counts;
         est.counts.coarserEvaluations = coarser;
         est.blockers = distinct(sc.mBlockers);
+        keepContour();
         return est;
     }
+}
+
+void ContourIntegrator::recordContour(bool on) { mRecord = on; }
+
+void ContourIntegrator::keepContour() {
+    if (!mRecord) return;
+    mContour.insert(mContour.end(), mScratch->mPassEdges.begin(), mScratch->mPassEdges.end());
+    mContourValid = mContourValid && mScratch->mPassEdgesValid;
 }
 
 Corner* ContourIntegrator::Scratch::reusableCorner(const RectLight& light, FirstLevelGrid grid,

@@ -222,6 +222,10 @@ struct ContourIntegrator::Scratch {
     std::vector<Disc> mTracedDiscs;  // coverage: their discs, in the same order
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     std::vector<uint32_t> mBlockers;   // the obstacles that blocked rays this time (repeats)
+    // recordContour: the current pass's emitted edges on the light's plane, and whether they
+    // can stand for its G (no disc arc, every point projected).
+    std::vector<ContourEdge> mPassEdges;
+    bool mPassEdgesValid = true;
     uint32_t mGeneration = 0;
     // Coverage's spatial index: one bucket per first-level square of the base grid (pa x pb),
     // each listing, in index order, the discs (mTracedDiscs), contour segments (mSegs) and

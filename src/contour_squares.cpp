@@ -29,6 +29,8 @@ uint32_t hashSquare(int x, int y, int s, uint32_t seed) {
 bool ContourIntegrator::Lattice::pass(int r) {
     g = Vec3(0.0);
     dg = Mat3(0.0);
+    scratch.mPassEdges.clear();
+    scratch.mPassEdgesValid = true;
     bound = 0.0;
     passLevel = r;
     scratch.mLeaves.clear();
@@ -505,6 +507,17 @@ Vertex ContourIntegrator::Lattice::vertexBetween(LatticePoint vis, LatticePoint 
 }
 
 void ContourIntegrator::Lattice::emit(const Vec3& a, const Vec3& b, double weight) {
+    if (self.mRecord) {
+        // Kept on the light's plane, along the lines from the receiver point (the apex of the
+        // integral: G does not change).
+        const double h = glm::dot(light.corner - rec.point, lightNormal);
+        auto onPlane = [&](const Vec3& p) {
+            const double d = glm::dot(p - rec.point, lightNormal);
+            if (!(d * h > 0.0) || !(std::abs(d) > 1e-12 * std::abs(h))) scratch.mPassEdgesValid = false;
+            return rec.point + (h / d) * (p - rec.point);
+        };
+        scratch.mPassEdges.push_back({onPlane(a), onPlane(b), weight});
+    }
     if (self.mSettings.gradient) {
         const EdgeDerivative e = edgeGWithDerivative(a - rec.point, b - rec.point);
         g += weight * e.g;

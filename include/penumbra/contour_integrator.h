@@ -62,6 +62,30 @@ public:
     /// Forgets the first-level rays kept for reuseCorners.
     void forgetCorners();
 
+    /// While on, each evaluate() keeps the contour it integrated (every weighted edge of the
+    /// visible part's boundary, projected from the receiver point onto the light's plane) in
+    /// place of what was kept, for visibleWithin(); while off, what was kept stays.
+    void recordContour(bool on);
+
+    /// The vector G of eq. 5 (divided by 2 pi, as Estimate::g) of the visible part of the light
+    /// within the rectangle [u0, u1] x [v0, v1] of `light`'s coordinates, from the contour the
+    /// last evaluate() of `light` at `r` located and kept (recordContour), without a ray: the
+    /// kept edges inside the rectangle plus the rectangle's border weighted by how much of it
+    /// the contour says is visible (its weighted winding number, counted along the border).
+    /// The sum over a partition of the light is the evaluation's own G. W differs from the
+    /// exact visibility only where the evaluation's bound counts (its strips, triangles and
+    /// uncovered cells), by at most contourWeightFactor(): the parts' errors together are
+    /// within that factor times the bound. False (G untouched) when nothing was kept, the
+    /// contour holds a disc's arcs, the rectangle reaches below the receiver's horizon, or the
+    /// winding number does not come back to its start around the rectangle (a contour that
+    /// does not close): the caller integrates the part on its own then.
+    bool visibleWithin(const Receiver& r, const RectLight& light, double u0, double v0, double u1,
+                       double v1, Vec3& g) const;
+
+    /// The most the kept contour's winding number can differ from a visibility (0 or 1) where
+    /// it is not one: max(1, |w|, |1 - w|) over its edges' weights w.
+    double contourWeightFactor() const;
+
     ContourIntegrator(const ContourIntegrator& other);
     ContourIntegrator& operator=(const ContourIntegrator& other);
     ContourIntegrator(ContourIntegrator&&) noexcept;
@@ -77,6 +101,16 @@ private:
     /// part above the horizon), each integrated as it is.
     Estimate evaluatePieces(const Receiver& r, const std::vector<RectLight>& pieces, Occluder::Query& query);
     bool mFanPiece = false;  // evaluating one piece of a polygon or disc light (no second clip)
+    /// recordContour: one weighted contour edge on the light's plane.
+    struct ContourEdge {
+        Vec3 a, b;
+        double weight;
+    };
+    bool mRecord = false;
+    bool mContourValid = false;  // what mContour holds can answer visibleWithin()
+    std::vector<ContourEdge> mContour;  // the last evaluate()'s, over all its pieces
+    /// Appends the finished lattice's edges to mContour (evaluate()'s returns).
+    void keepContour();
 };
 
 /// One-shot convenience: a fresh ContourIntegrator per call.
