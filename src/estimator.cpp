@@ -543,9 +543,10 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
                                              double(a.cell.j0 + a.cell.size) / n, g)) {
             // The part of the whole light's contour in the cell, without a ray: its error over
             // all such cells together is within the whole light's bound times the contour's
-            // weight factor, which counts once (below), at the largest of their weights. Until 2026-12-06 each took ACI of its
-            // own, and a fog beside a cylinder cost 250 shadow rays a viewing ray, most of them
-            // in those cells (bench_random --lights mixed --fog, seed 8403).
+            // weight factor, which counts once (below), at the largest of their weights. Until
+            // 2026-12-06 each took an ACI of its own, locating again what the whole light's had
+            // located (bench_random --lights mixed --fog, seed 8403: 237 shadow rays a viewing
+            // ray, now 169).
             e.g = g;
             e.formFactor = std::max(0.0, glm::dot(g, r.normal));
             e.errorBound = 0.0;
@@ -568,7 +569,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
                           (disc ? w * kDiscSliver * std::max(0.0, e.formFactor) : 0.0);
     }
     aci.setSettings(base);
-    if (clippedWeight > 0.0) out.errorBound += clippedWeight * aci.contourWeightFactor() * wholeBound;
+    if (clippedWeight > 0.0)
+        out.errorBound += clippedWeight * aci.contourWeightFactor() * wholeBound;
     out.formFactor = std::max(0.0, out.formFactor);
     for (int k = 0; k < 3; ++k) out.gradient[k] = glm::dot(out.dg[k], r.normal);
     return out;
