@@ -342,7 +342,7 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
     // receiver's horizon or outside a shaped light. On an open light T = 1 without a ray outside
     // the footprint; otherwise each node's ray also tells whether an opaque obstacle hides it
     // (Query::transmitted, one ray for both), so that only the cells the opaque contour may
-    // cross need ACI of their own.
+    // cross need their visible part from the contour (below).
     struct Node {
         double t = -1.0, k = 0.0;  // t < 0: not traced yet
         bool hidden = false;
@@ -522,7 +522,8 @@ Estimate aciThroughMedia(ContourIntegrator& aci, const Receiver& r, const RectLi
         const RectLight& cell = *part;
         // A cell whose nine nodes are all hidden counts as hidden, one whose nodes are all
         // visible as open (a rectangle light's cell then has its closed form); only cells
-        // whose nodes disagree, which the opaque contour crosses, take ACI of their own. An
+        // whose nodes disagree, which the opaque contour crosses, take their part of the
+        // whole light's contour (or, where that cannot answer, an ACI of their own). An
         // opaque feature between the nodes of a cell is still in F(light) exactly: it only
         // misses its (1 - T) share here.
         if (a.m.hidden == a.m.emitting) continue;
