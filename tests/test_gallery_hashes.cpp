@@ -202,7 +202,11 @@ struct GalleryCase {
 // crosses began to take their visible part from the whole light's contour instead of an ACI of
 // their own (estimator.cpp, aciThroughMedia; ContourIntegrator::visibleWithin), with the
 // renderer's checked interpolation through media where opaque obstacles may shadow (at 300 x 300
-// within 1 of 255 of the old image at 96 pixels; the rest unchanged).
+// within 1 of 255 of the old image at 96 pixels; the rest unchanged). The fog's row again the
+// same session, when checked interpolation began to take the quartic through its five samples
+// where each inner one agrees with the cubic through the other four (renderer.cpp,
+// refineCheckedRun; at 300 x 300 the fog within 2.6 of 255 of the old image, mean 0.0006, table1
+// within 1.7 and default within 1.6; at 40 x 40 only the fog's spans are long enough).
 const GalleryCase kCases[] = {
     {"default", "", "ce351579b17b2a7e"},
     {"default", "--aci-mode paper", "05a7dd0a5617ce0a"},
@@ -213,7 +217,7 @@ const GalleryCase kCases[] = {
     {"csg", "", "226d3a98fb706ecb"},
     {"vdb_tool", "", "73d30dc30852b70d"},
     {"bunny", "", "4fad33cf4a44eae6"},
-    {"fog", "", "993688b64ad78f40"},
+    {"fog", "", "cae102aeb0e4c646"},
 };
 
 }  // namespace
