@@ -105,24 +105,55 @@ CellDistance::CellDistance(const int origin[3], const int dims[3], const std::ve
       mInvBlock(1.0 / block),
       mUnit(block / 4.0),
       mQuarters(size_t(mBricks[0]) * size_t(mBricks[1]) * size_t(mBricks[2]) * 64, 0) {
-    const size_t n = cellCount(dims);
     constexpr double kMaxCells = 127.0 / 4.0;
-    std::vector<uint8_t> mark(n);
-    std::vector<float> d2(n);
+    std::vector<uint8_t> mark;
+    std::vector<float> d2;
+    // The inside cells' box, two cells wider (within the table): the nearest cell that is not
+    // inside lies in it, the cells just past that box's border being none of them (or the
+    // table's border rule below applying), so the inside pass runs over it alone, and not at all
+    // without inside cells (a thin obstacle). The same distances as over the whole table.
+    int lo[3] = {dims[0], dims[1], dims[2]}, hi[3] = {-1, -1, -1};
+    for (int zc = 0; zc < dims[2]; ++zc)
+        for (int yc = 0; yc < dims[1]; ++yc)
+            for (int xc = 0; xc < dims[0]; ++xc) {
+                if (states[(size_t(zc) * size_t(dims[1]) + size_t(yc)) * size_t(dims[0]) + size_t(xc)] != kInside)
+                    continue;
+                const int c[3] = {xc, yc, zc};
+                for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], c[a]), hi[a] = std::max(hi[a], c[a]);
+            }
     // Twice: the clear cells' distance to cells that are not clear, and the inside cells' to
     // cells that are not inside.
     for (State side : {kClear, kInside}) {
-        for (size_t i = 0; i < n; ++i) mark[i] = states[i] != side;
-        growByOne(mark, dims);
+        int from[3] = {0, 0, 0}, sub[3] = {dims[0], dims[1], dims[2]};
+        if (side == kInside) {
+            if (hi[0] < 0) break;  // no inside cell
+            for (int a = 0; a < 3; ++a) {
+                from[a] = std::max(0, lo[a] - 2);
+                sub[a] = std::min(dims[a] - 1, hi[a] + 2) - from[a] + 1;
+            }
+        }
+        const size_t n = cellCount(sub);
+        auto at = [&](int xs, int ys, int zs) {  // sub-box cell -> table index
+            return (size_t(zs + from[2]) * size_t(dims[1]) + size_t(ys + from[1])) * size_t(dims[0]) +
+                   size_t(xs + from[0]);
+        };
+        mark.assign(n, 0);
+        d2.assign(n, 0.0f);
+        size_t j = 0;
+        for (int zs = 0; zs < sub[2]; ++zs)
+            for (int ys = 0; ys < sub[1]; ++ys)
+                for (int xs = 0; xs < sub[0]; ++xs) mark[j++] = states[at(xs, ys, zs)] != side;
+        growByOne(mark, sub);
         for (size_t i = 0; i < n; ++i) d2[i] = mark[i] ? 0.0f : kEdtFar;
-        squaredDistanceTransform(d2, dims);
-        for (int zc = 0; zc < dims[2]; ++zc)
-            for (int yc = 0; yc < dims[1]; ++yc)
-                for (int xc = 0; xc < dims[0]; ++xc) {
-                    const size_t i = (size_t(zc) * size_t(dims[1]) + size_t(yc)) * size_t(dims[0]) +
-                                     size_t(xc);
+        squaredDistanceTransform(d2, sub);
+        j = 0;
+        for (int zs = 0; zs < sub[2]; ++zs)
+            for (int ys = 0; ys < sub[1]; ++ys)
+                for (int xs = 0; xs < sub[0]; ++xs, ++j) {
+                    const int xc = xs + from[0], yc = ys + from[1], zc = zs + from[2];
+                    const size_t i = at(xs, ys, zs);
                     if (states[i] != side) continue;
-                    double dist = std::sqrt(double(d2[i]));
+                    double dist = std::sqrt(double(d2[j]));
                     if (side == kInside) {
                         // Beyond the table every cell counts as clear: an inside cell is no
                         // farther from one than from the table's border (box distance to the
