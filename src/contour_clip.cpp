@@ -14,9 +14,9 @@
 // with R's border cut where edges cross it (W is constant between). W at R's first corner is
 // counted along a line from outside the light (where W = 0) and carried along the border,
 // changing by w_e where edge e crosses it. The lattice's lines, on which contour vertices lie,
-// are dyadic fractions of the light, as the cells' sides are: the rectangle is moved by a
-// billionth of the light, in directions that no lattice line shares, so that no vertex lies on
-// its border (what that moves is far below any bound).
+// are dyadic fractions of the light, as the cells' sides are: each side of the rectangle is
+// moved by an irrational share of a billionth of the light, which no lattice line's coordinate
+// has, so that no vertex lies on its border (what that moves is far below any bound).
 #include <algorithm>
 #include <cmath>
 #include <vector>
