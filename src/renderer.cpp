@@ -907,9 +907,9 @@ private:
         // 2026-12-06: on random scenes 1-4 at 200 x 200, 2-11% fewer shadow rays and the same
         // mean differences to three decimals; Table 1 at 300 x 300, 8% fewer evaluations).
         bool quartic = false;
+        const int xs[5] = {l, q0, m, q1, r};
+        const Sample* ss[5] = {&sl, &s0, &sm, &s1, &sr};
         if (!ok && left && right) {
-            const int xs[5] = {l, q0, m, q1, r};
-            const Sample* ss[5] = {&sl, &s0, &sm, &s1, &sr};
             Vec3 shadow[5];
             for (int k = 0; k < 5; ++k) shadow[k] = ss[k]->openG - ss[k]->g;
             double worst = 0.0;
@@ -919,11 +919,7 @@ private:
                 int c = 0;
                 for (int j = 0; j < 5; ++j)
                     if (j != k) ox[c] = xs[j], ov[c] = shadow[j], ++c;
-                const Vec3 n = mTs.hits[size_t(xs[k])].normal;
-                const Vec3 g = ss[k]->openG - lagrangeN(xs[k], ox, ov, 4);
-                const double open = glm::dot(ss[k]->openG, n);
-                const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(ss[k]->g, n));
-                worst = std::max(worst, open > 0.0 ? diff / open : (diff > 0.0 ? HUGE_VAL : 0.0));
+                worst = std::max(worst, relativeMiss(xs[k], *ss[k], lagrangeN(xs[k], ox, ov, 4)));
             }
             quartic = ok = worst <= kCheckedInterpolationTolerance;
         }
@@ -953,8 +949,6 @@ private:
                  (!right || agrees(s1));
         }
         if (ok && quartic) {
-            const int xs[5] = {l, q0, m, q1, r};
-            const Sample* ss[5] = {&sl, &s0, &sm, &s1, &sr};
             for (int i = l + 1; i < r; ++i) {
                 if (i == q0 || i == m || i == q1) continue;
                 interpolateQuartic(i, xs, ss);
@@ -981,29 +975,16 @@ private:
     // samples' largest plus what the check allowed (not certified by rays of its own).
     void interpolateShadow(int i, int x0, const Sample& s0, int xm, const Sample& sm, int x1,
                            const Sample& s1) {
-        const Receiver r = receiver(i);
-        const GWithDerivative open = unoccludedG(mLight, r);
-        const Vec3 g = open.g - lagrange(i, x0, s0.openG - s0.g, xm, sm.openG - sm.g, x1,
-                                         s1.openG - s1.g);
-        const Vec3 grad = gradientOf(open.dg, r.normal) -
+        storeInterpolated(i,
+                          lagrange(i, x0, s0.openG - s0.g, xm, sm.openG - sm.g, x1, s1.openG - s1.g),
                           lagrange(i, x0, s0.openGradient - s0.gradient, xm,
-                                   sm.openGradient - sm.gradient, x1, s1.openGradient - s1.gradient);
-        const double f = std::max(0.0, glm::dot(g, r.normal));
-        const double bound = std::max({s0.errorBound, sm.errorBound, s1.errorBound}) +
-                             kCheckedInterpolationTolerance * glm::dot(open.g, r.normal);
-        store(i, f, grad, bound);
-        mTs.sums[size_t(i)].shadowed = true;
-        ++mTs.stats.interpolatedPixels;
-        // The check saw the same blockers at its five samples (media runs record nothing).
-        if (!mCheckMedia)
-            record(i, open.g - g, gradientOf(open.dg, r.normal) - grad, bound, s0.blockers);
+                                   sm.openGradient - sm.gradient, x1, s1.openGradient - s1.gradient),
+                          std::max({s0.errorBound, sm.errorBound, s1.errorBound}), s0.blockers);
     }
 
     // Checked interpolation at pixel i by the quartic through five samples (refineCheckedRun),
     // as interpolateShadow does with a quadratic.
     void interpolateQuartic(int i, const int* xs, const Sample* const* ss) {
-        const Receiver r = receiver(i);
-        const GWithDerivative open = unoccludedG(mLight, r);
         Vec3 sh[5], shg[5];
         double bound = 0.0;
         for (int k = 0; k < 5; ++k) {
@@ -1011,15 +992,25 @@ private:
             shg[k] = ss[k]->openGradient - ss[k]->gradient;
             bound = std::max(bound, ss[k]->errorBound);
         }
-        const Vec3 g = open.g - lagrangeN(i, xs, sh, 5);
-        const Vec3 grad = gradientOf(open.dg, r.normal) - lagrangeN(i, xs, shg, 5);
+        storeInterpolated(i, lagrangeN(i, xs, sh, 5), lagrangeN(i, xs, shg, 5), bound, ss[0]->blockers);
+    }
+
+    // Pixel i from its interpolated shadow (and the shadow's gradient), taken from its own
+    // closed form; its bound the samples' largest plus what the check allowed.
+    void storeInterpolated(int i, const Vec3& shadow, const Vec3& shadowGradient, double samplesBound,
+                           const std::vector<uint32_t>& blockers) {
+        const Receiver r = receiver(i);
+        const GWithDerivative open = unoccludedG(mLight, r);
+        const Vec3 g = open.g - shadow;
+        const Vec3 grad = gradientOf(open.dg, r.normal) - shadowGradient;
         const double f = std::max(0.0, glm::dot(g, r.normal));
-        bound += kCheckedInterpolationTolerance * glm::dot(open.g, r.normal);
+        const double bound = samplesBound + kCheckedInterpolationTolerance * glm::dot(open.g, r.normal);
         store(i, f, grad, bound);
         mTs.sums[size_t(i)].shadowed = true;
         ++mTs.stats.interpolatedPixels;
+        // The check saw the same blockers at its five samples (media runs record nothing).
         if (!mCheckMedia)
-            record(i, open.g - g, gradientOf(open.dg, r.normal) - grad, bound, ss[0]->blockers);
+            record(i, open.g - g, gradientOf(open.dg, r.normal) - grad, bound, blockers);
     }
 
     // The candidates that may block a segment from some pixel of [l, r] to the light (the
@@ -1036,9 +1027,13 @@ private:
     // |F(q) - F predicted at q by the shadow's quadratic through l, m, r| over the unoccluded F at q.
     double predictionMiss(int q, const Sample& sq, int l, const Sample& sl, int m,
                           const Sample& sm, int r, const Sample& sr) const {
+        return relativeMiss(q, sq, lagrange(q, l, sl.openG - sl.g, m, sm.openG - sm.g, r, sr.openG - sr.g));
+    }
+
+    // |F(q) - F from the predicted shadow at q| over the unoccluded F at q.
+    double relativeMiss(int q, const Sample& sq, const Vec3& shadow) const {
         const Vec3 n = mTs.hits[size_t(q)].normal;
-        const Vec3 g = sq.openG - lagrange(q, l, sl.openG - sl.g, m, sm.openG - sm.g, r,
-                                           sr.openG - sr.g);
+        const Vec3 g = sq.openG - shadow;
         const double open = glm::dot(sq.openG, n);
         const double diff = std::abs(std::max(0.0, glm::dot(g, n)) - glm::dot(sq.g, n));
         return open > 0.0 ? diff / open : (diff > 0.0 ? HUGE_VAL : 0.0);

@@ -240,6 +240,28 @@ TEST_CASE("renders through a fog are the same on 1 and 2 threads", "[volume][det
     }
 }
 
+namespace {
+
+// The largest |F| difference between two renders of one camera (the form factor AOV).
+double largestDifference(const RenderResult& a, const RenderResult& b) {
+    double worst = 0.0;
+    for (int y = 0; y < a.aovs.formFactor.height; ++y)
+        for (int x = 0; x < a.aovs.formFactor.width; ++x)
+            worst = std::max(worst, std::abs(double(a.aovs.formFactor.at(x, y, 0)) -
+                                             double(b.aovs.formFactor.at(x, y, 0))));
+    return worst;
+}
+
+double largestFormFactor(const RenderResult& a) {
+    double peak = 0.0;
+    for (int y = 0; y < a.aovs.formFactor.height; ++y)
+        for (int x = 0; x < a.aovs.formFactor.width; ++x)
+            peak = std::max(peak, double(a.aovs.formFactor.at(x, y, 0)));
+    return peak;
+}
+
+}  // namespace
+
 TEST_CASE("through media, checked interpolation along spans agrees with evaluating every pixel",
           "[volume][coherence]") {
     // A soft fog sphere and an opaque sphere beside it. With coherence on, runs of pixels are
@@ -269,13 +291,7 @@ TEST_CASE("through media, checked interpolation along spans agrees with evaluati
     CHECK(coherent.stats.aciEvaluations + coherent.stats.interpolatedPixels ==
           each.stats.aciEvaluations);
     CHECK(coherent.stats.shadowRays < each.stats.shadowRays);
-    double worst = 0.0, peak = 0.0;
-    for (int y = 0; y < 48; ++y)
-        for (int x = 0; x < 96; ++x) {
-            peak = std::max(peak, double(each.aovs.formFactor.at(x, y, 0)));
-            worst = std::max(worst, std::abs(double(coherent.aovs.formFactor.at(x, y, 0)) -
-                                             double(each.aovs.formFactor.at(x, y, 0))));
-        }
+    const double worst = largestDifference(coherent, each), peak = largestFormFactor(each);
     // The check lets a quadratic miss by 0.0005 of the unoccluded form factor (at most the
     // image's largest F) over an interval twice as long as the ones interpolated: twice that is
     // a bound with room for the evaluations' own cubature differences. Measured: 0.0003.
@@ -320,14 +336,8 @@ TEST_CASE("through media, pixels that opaque obstacles may shadow are interpolat
     CHECK(coherent.stats.aciEvaluations + coherent.stats.interpolatedPixels ==
           each.stats.aciEvaluations);
     CHECK(coherent.stats.shadowRays < each.stats.shadowRays);
-    double worst = 0.0, peak = 0.0;
-    for (int y = 0; y < 48; ++y)
-        for (int x = 0; x < 96; ++x) {
-            peak = std::max({peak, double(unoccluded.aovs.formFactor.at(x, y, 0)),
-                             double(each.aovs.formFactor.at(x, y, 0))});
-            worst = std::max(worst, std::abs(double(coherent.aovs.formFactor.at(x, y, 0)) -
-                                             double(each.aovs.formFactor.at(x, y, 0))));
-        }
+    const double worst = largestDifference(coherent, each),
+                 peak = std::max(largestFormFactor(unoccluded), largestFormFactor(each));
     // As in the test above: twice the check's tolerance (relative to the unoccluded form
     // factor), with room for the evaluations' own differences.
     INFO("largest difference " << worst << " for a largest F of " << peak);
