@@ -130,17 +130,23 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
         if (self.mSettings.coverage) change += junctionAllowance(a, b, c);
         ownThr += stripFormFactor(rec, lightNormal, a.c, b.c, epsWorld);
     }
-    if (thr < 0.0) thr = ownThr * self.mSettings.thresholdScale * coverageThreshold();
+    // The threshold a split passes down (halved at each level, section 3.2). In tangent mode
+    // one set by no checked piece (every piece an arc or the border, or a midline that
+    // disagrees) would be 0 and force every square below to refine to the lattice; each
+    // square below then sets its own from its pieces instead.
+    const bool ownSet = thr < 0.0;
+    if (ownSet) thr = ownThr * self.mSettings.thresholdScale * coverageThreshold();
+    const double passedThr = ownSet && ownThr <= 0.0 && self.mSettings.coverage ? -1.0 : thr;
 
     if (self.mSettings.refine && k > 0 && change > thr) {
         ++counts.squaresRefined;
-        return split(x0, y0, k, thr, depth, v, onBorder);
+        return split(x0, y0, k, passedThr, depth, v, onBorder);
     }
 
     if (self.mSettings.coverage) {
         if (k > 0 && markedInside(x0, y0, s, -1)) {
             ++counts.squaresSplitForCoverage;
-            return split(x0, y0, k, thr, depth, v, onBorder);
+            return split(x0, y0, k, passedThr, depth, v, onBorder);
         }
         recordContourLeaf(x0, y0, s, x, pieces, nPieces);
     }

@@ -111,6 +111,48 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         bool projects = true;
         for (int c = 0; c < 8 && projects; ++c) projects = project(box.corner(c), false, u[c], v[c]);
         if (!projects) {
+            // A box reaching level with the origin: a segment to the light stays within s x reach
+            // of the origin over its first fraction s (reach: the origin's distance from the
+            // light's farthest corner), so it meets the box only past s = dBox / reach. What
+            // lies beyond that plane projects to a bounded region; the rectangle in (u, v)
+            // around its points holds it. Not for an origin on or in the box.
+            const Vec3 gap = glm::max(glm::max(box.lo - origin, origin - box.hi), Vec3(0.0));
+            const double dBox = glm::length(gap);
+            double reach = 0.0;
+            for (const Vec3& q : {light.corner, light.corner + light.edgeU, light.corner + light.edgeV,
+                                  light.corner + light.edgeU + light.edgeV})
+                reach = std::max(reach, glm::length(q - origin));
+            const double sc = reach > 0.0 ? 0.999 * dBox / reach : 0.0;
+            if (sc > 1e-6) {
+                double along[8];
+                for (int c = 0; c < 8; ++c) along[c] = glm::dot(box.corner(c) - origin, n) / mToLight;
+                double lo[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+                double hi[2] = {-lo[0], -lo[1]};
+                int kept = 0;
+                auto take = [&](const Vec3& x, double a) {
+                    const Vec2 uv = light.coordinates(origin + (x - origin) / a);
+                    lo[0] = std::min(lo[0], uv.x), hi[0] = std::max(hi[0], uv.x);
+                    lo[1] = std::min(lo[1], uv.y), hi[1] = std::max(hi[1], uv.y);
+                    ++kept;
+                };
+                for (int c = 0; c < 8; ++c) {
+                    if (along[c] >= sc) take(box.corner(c), along[c]);
+                    for (int bit = 1; bit < 8; bit <<= 1) {
+                        const int d = c | bit;
+                        if (d == c || (along[c] >= sc) == (along[d] >= sc)) continue;
+                        const double w = (sc - along[c]) / (along[d] - along[c]);
+                        take(box.corner(c) + w * (box.corner(d) - box.corner(c)), sc);
+                    }
+                }
+                if (kept == 0) continue;  // wholly nearer than any segment can reach it
+                for (int c = 0; c < 8; ++c) {
+                    u[c] = (c & 1) == ((c >> 1) & 1) ? lo[0] : hi[0];
+                    v[c] = (c & 2) ? hi[1] : lo[1];
+                }
+                projects = true;
+            }
+        }
+        if (!projects) {
             bounded = false;
             unboundedThin = unboundedThin && occ.voxelSize(i) > 0.0 && occ.kernelBalls(i).empty();
         }

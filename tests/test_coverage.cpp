@@ -1382,3 +1382,35 @@ TEST_CASE("coverage: obstacles near the light whose shadows touch no corner and 
         CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound + 4.0 * m.sigma);
     }
 }
+
+TEST_CASE("tangent mode: squares below one whose threshold no checked piece set take their own "
+          "(random scene 8902)",
+          "[aci][coverage]") {
+    // bench_random --lights mixed, seed 8902: a level-set box 0.044 under a tilted light, and a
+    // small torus between. At this ground point the box's silhouette and the torus' meet on the
+    // light. A square whose pieces were all tangent arcs, or whose side's middle disagreed with
+    // its ends, set no threshold from a checked piece; until the thirty-fifth session it passed
+    // 0 to its sub-squares, and every one of them refined to the lattice (108 squares refined
+    // here; 42 since).
+    const std::string json = R"({
+      "lights": [{"corner": [1.6785819723381228, -1.1998662701379987, 3.1666200737709165],
+                  "edge_u": [-2.0348797250064168, -0.98210871628167529, 1.3192466712232283],
+                  "edge_v": [-1.186443593758902, 2.5908823743930838, 0.098736765299163448]}],
+      "obstacles": [{"type": "torus", "center": [-1.18993, -0.489979, 2.5443], "major_radius": 0.0534,
+                     "minor_radius": 0.0356, "axis": [-0.895713, 0.0845998, -0.43651]},
+                    {"type": "box", "center": [0, 0, 0], "size": [0.988732, 0.697681, 0.749409],
+                     "transform": {"rotate_deg": [301.128, 318.362, 71.2836],
+                                   "translate": [-0.467101, -0.516348, 3.39766]}}],
+      "level_set": {"voxel_size": 0.0178, "half_width": 3}
+    })";
+    const Scene scene = parseScene(json, "seed8902.json", ".");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const AgainstFiner m = againstFiner(occ, q, scene.lights[0], {Vec3(-2.0, -2.0, 0.0), kUp}, 2);
+    CAPTURE(m.aci.formFactor, m.aci.errorBound, m.ref, m.full, m.aci.counts.squaresRefined);
+    REQUIRE(m.ref < 0.9 * m.full);  // the box hides part of the light
+    CHECK(m.aci.counts.squaresRefined <= 75);
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= 0.001 * m.full);
+    CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound);
+}

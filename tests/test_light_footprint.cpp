@@ -30,6 +30,9 @@ namespace {
 struct Counts {
     long outside = 0, hidden = 0, samples = 0, violations = 0, discs = 0, hiddenDiscs = 0;
     long hiddenExact = 0, hiddenBalls = 0;  // of hiddenDiscs: analytic kernels, level sets' balls
+    // Points whose footprints were built, and of them those where some obstacle's solid box
+    // reaches level with or behind the point (seen from the light).
+    long built = 0, builtStraddling = 0;
 };
 
 // Receiver points: on the ground plane z = 0 in [-r, r]^2, facing up.
@@ -41,6 +44,17 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
     for (int k = 0; k < points; ++k) {
         const Vec3 origin(pos(rng), pos(rng), 1e-6);
         if (!fp.build(occ, nullptr, origin, light)) continue;
+        ++counts.built;
+        {
+            const Vec3 n = light.normal();
+            const double toLight = glm::dot(light.corner - origin, n);
+            bool straddling = false;
+            for (size_t i = 0; i < occ.size() && !straddling; ++i)
+                for (int c = 0; c < 8 && !straddling; ++c)
+                    straddling = !occ.solidBounds(i).empty() &&
+                                 glm::dot(occ.solidBounds(i).corner(c) - origin, n) / toLight <= 0.0;
+            if (straddling) ++counts.builtStraddling;
+        }
         // Half the samples uniform on the light, half around each obstacle's shadow, where
         // the footprints' borders are: about its solid sphere's projection, out to twice its
         // radius there.
@@ -66,13 +80,22 @@ void checkScene(const Occluder& occ, const RectLight& light, std::mt19937& rng, 
             }
             ++counts.samples;
             // The footprints' distance: every light point that near is visible too, checked at
-            // a point just inside the disc's rim, in a random direction in the light's plane.
+            // a point just inside the disc's rim, in a random direction in the light's plane, or
+            // where that direction leaves the light if it does so first.
             const double d = fp.distance(u, v);
             if (d > 0.0) {
                 ++counts.discs;
                 const Vec3 ex = glm::normalize(light.edgeU), ey = glm::cross(n, ex);
                 const double a = 2.0 * kPi * unit(rng);
-                const Vec3 rim = light.point(u, v) + 0.999 * d * (std::cos(a) * ex + std::sin(a) * ey);
+                const Vec3 w = std::cos(a) * ex + std::sin(a) * ey;
+                const Vec2 step = light.coordinates(light.point(u, v) + w) - Vec2(u, v);
+                double along = 0.999 * d;
+                for (int axis = 0; axis < 2; ++axis) {
+                    const double at = axis == 0 ? u : v;
+                    if (step[axis] > 0.0) along = std::min(along, (1.0 - at) / step[axis]);
+                    if (step[axis] < 0.0) along = std::min(along, -at / step[axis]);
+                }
+                const Vec3 rim = light.point(u, v) + along * w;
                 if (q.occluded(origin, rim)) {
                     ++counts.violations;
                     CAPTURE(origin, u, v, d);
@@ -176,4 +199,39 @@ TEST_CASE("light footprints: none from a point an obstacle's solid box reaches b
     const std::vector<uint32_t> none;
     REQUIRE(fp.build(occ, &none, Vec3(0.0, 0.0, 0.5 + 1e-6), light));
     CHECK(fp.outside(0.0, 0.0, 1.0, 1.0));
+}
+
+TEST_CASE("light footprints: obstacles level with or behind the point, seen from a tilted light, "
+          "leave the footprints bounded",
+          "[aci][coverage][footprint]") {
+    // A light tilted 60 degrees: the plane through a ground point parallel to it cuts through
+    // obstacles lying low beside the point, or leaves them wholly behind it. No segment to the
+    // light meets what lies nearer than the box's distance over the light's farthest corner's
+    // (as a fraction of the way), so the rest bounds the footprint. Until the thirty-fifth
+    // session any such obstacle made the footprints unbounded, and every sample took a ray.
+    std::mt19937 rng(20261206);
+    RectLight light;
+    light.corner = Vec3(-1.0, -1.2, 2.6);
+    light.edgeU = Vec3(2.0, 0.0, 0.0);
+    light.edgeV = Vec3(0.0, 1.0, 1.73);
+    std::vector<std::vector<ObstacleShape>> scenes;
+    scenes.push_back({AnalyticSphere{Vec3(0.9, -1.4, 0.3), 0.2}, AnalyticSphere{Vec3(-1.2, -1.5, 0.2), 0.15},
+                      AnalyticBox{Vec3(-0.3, -2.4, 0.0), Vec3(0.3, -1.9, 0.5)},
+                      AnalyticSphere{Vec3(0.1, 0.3, 1.4), 0.25}});
+    scenes.push_back({makeSphereLevelSet(Vec3(0.8, -1.5, 0.3), 0.25, 0.02, 3.0),
+                      makeBoxLevelSet(Vec3(-0.9, -2.2, 0.0), Vec3(-0.4, -1.7, 0.4), 0.02, 3.0),
+                      makeSphereLevelSet(Vec3(0.0, 0.2, 1.3), 0.3, 0.02, 3.0)});
+    Counts counts;
+    for (const auto& shapes : scenes) {
+        Occluder occ(shapes);
+        checkScene(occ, light, rng, 300, 64, 2.0, counts);
+    }
+    WARN("tilted light: " << counts.built << " points with footprints, " << counts.builtStraddling
+                          << " of them beside an obstacle level with or behind them; "
+                          << counts.samples << " light samples, " << counts.outside
+                          << " outside every footprint, " << counts.discs << " with a disc, "
+                          << counts.violations << " answered otherwise by a ray");
+    CHECK(counts.violations == 0);
+    CHECK(counts.builtStraddling > 100);
+    CHECK(counts.outside > counts.samples / 4);
 }

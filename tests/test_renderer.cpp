@@ -182,7 +182,12 @@ TEST_CASE("shaft culling gives the image of rendering with every obstacle as a c
     CHECK(a.stats.spans == b.stats.spans);
     CHECK(a.stats.culledSpans > 0);
     CHECK(b.stats.culledSpans == 0);
-    CHECK(a.stats.shadowRays < b.stats.shadowRays);
+    // Culling saves the arcs mode rays. The default's footprints prove a culled obstacle's
+    // part of the light visible without a ray anyway (since the thirty-fifth session also one
+    // lying level with or behind the receiver point, seen from the light: until then such an
+    // obstacle left every sample to a ray, 1,049 shadow rays here culled and 19,261 not).
+    if (mode == AciMode::Arcs) CHECK(a.stats.shadowRays < b.stats.shadowRays);
+    CHECK(a.stats.shadowRays <= b.stats.shadowRays);
     // Certified coverage (the default's) casts rays of its own; the arcs mode none.
     CHECK((a.stats.coverageRays > 0) == (mode == AciMode::Tangent));
     CHECK(a.stats.coverageRays < a.stats.secondLevelRays + 1);
