@@ -276,6 +276,130 @@ LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
     const openvdb::Vec3d hi = active.max().asVec3d() + openvdb::Vec3d(0.5);
     mBoundsWS = worldBoxOf(*mGrid, lo, hi);
     findSolid();
+    findOrientedSolid();
+}
+
+// The oriented solid box: a frame that starts from the better of the world axes and the
+// principal axes of the voxels <= 0 (active ones, and active tiles by their corners; the inside
+// beyond the band is enclosed by them), turned about each of its axes by smaller and smaller
+// angles while the volume falls (on at most kSearchPoints of those points), then the extents of
+// every point along it, grown by a cell's diagonal and a quarter voxel: a point where the
+// interpolant is <= 0 lies in a cell with such a corner. Kept when under 0.9 of the volume of
+// the axis-aligned solid box, which is tighter (a 32nd of a voxel) where the axes agree.
+void LevelSet::findOrientedSolid() {
+    mSolidOriented = OrientedBox::of(mSolidWS);
+    if (mSolidWS.empty()) return;
+    auto forEachPoint = [&](auto&& f) {
+        for (auto it = mGrid->cbeginValueOn(); it; ++it) {
+            if (!(*it <= 0.0f)) continue;
+            if (it.isVoxelValue()) {
+                f(it.getCoord().asVec3d());
+                continue;
+            }
+            openvdb::CoordBBox box;
+            it.getBoundingBox(box);
+            for (int c = 0; c < 8; ++c)
+                f(openvdb::Vec3d((c & 1) ? box.max().x() : box.min().x(), (c & 2) ? box.max().y() : box.min().y(),
+                                 (c & 4) ? box.max().z() : box.min().z()));
+        }
+    };
+    auto world = [&](const openvdb::Vec3d& ijk) {
+        const openvdb::Vec3d w = mGrid->indexToWorld(ijk);
+        return Vec3(w.x(), w.y(), w.z());
+    };
+    size_t count = 0;
+    forEachPoint([&](const openvdb::Vec3d&) { ++count; });
+    if (count < 4) return;
+    constexpr size_t kSearchPoints = 20000;
+    const size_t stride = std::max<size_t>(1, count / kSearchPoints);
+    std::vector<Vec3> pts;
+    pts.reserve(count / stride + 1);
+    size_t k = 0;
+    forEachPoint([&](const openvdb::Vec3d& ijk) {
+        if (k++ % stride == 0) pts.push_back(world(ijk));
+    });
+    const double grow = (std::sqrt(3.0) + 0.25) * mVoxelSize;
+    struct Frame {
+        Vec3 a[3];
+    };
+    auto extents = [&](const Frame& f, const std::vector<Vec3>& ps, Vec3& lo, Vec3& hi) {
+        lo = Vec3(1e300);
+        hi = Vec3(-1e300);
+        for (const Vec3& p : ps)
+            for (int d = 0; d < 3; ++d) {
+                const double x = glm::dot(p, f.a[d]);
+                lo[d] = std::min(lo[d], x);
+                hi[d] = std::max(hi[d], x);
+            }
+    };
+    auto volume = [&](const Frame& f) {
+        Vec3 lo, hi;
+        extents(f, pts, lo, hi);
+        return (hi.x - lo.x + 2.0 * grow) * (hi.y - lo.y + 2.0 * grow) * (hi.z - lo.z + 2.0 * grow);
+    };
+    auto orthonormal = [](Frame f) {
+        f.a[0] = glm::normalize(f.a[0]);
+        f.a[1] = glm::normalize(f.a[1] - glm::dot(f.a[1], f.a[0]) * f.a[0]);
+        f.a[2] = glm::cross(f.a[0], f.a[1]);
+        return f;
+    };
+    Frame best{{Vec3(1.0, 0.0, 0.0), Vec3(0.0, 1.0, 0.0), Vec3(0.0, 0.0, 1.0)}};
+    double bestVolume = volume(best);
+    {
+        Vec3 mean(0.0);
+        for (const Vec3& p : pts) mean += p;
+        mean /= double(pts.size());
+        openvdb::math::Mat3d cov(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for (const Vec3& p : pts) {
+            const Vec3 d = p - mean;
+            for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < 3; ++j) cov(i, j) += d[i] * d[j];
+        }
+        openvdb::math::Mat3d q;
+        openvdb::math::Vec3d eig;
+        if (openvdb::math::diagonalizeSymmetricMatrix(cov, q, eig)) {
+            const Frame pca = orthonormal(
+                Frame{{Vec3(q(0, 0), q(1, 0), q(2, 0)), Vec3(q(0, 1), q(1, 1), q(2, 1)), Vec3(q(0, 2), q(1, 2), q(2, 2))}});
+            if (std::isfinite(pca.a[2].x)) {
+                const double v = volume(pca);
+                if (v < bestVolume) best = pca, bestVolume = v;
+            }
+        }
+    }
+    for (double angle = kPi / 8.0; angle > kPi / 256.0; angle *= 0.5) {
+        for (int round = 0; round < 4; ++round) {
+            bool improved = false;
+            for (int axis = 0; axis < 3; ++axis)
+                for (double sign : {1.0, -1.0}) {
+                    const Vec3& u = best.a[(axis + 1) % 3];
+                    const Vec3& w = best.a[(axis + 2) % 3];
+                    const double c = std::cos(sign * angle), sn = std::sin(sign * angle);
+                    Frame f = best;
+                    f.a[(axis + 1) % 3] = c * u + sn * w;
+                    f.a[(axis + 2) % 3] = c * w - sn * u;
+                    f = orthonormal(f);
+                    const double v = volume(f);
+                    if (v < bestVolume) best = f, bestVolume = v, improved = true;
+                }
+            if (!improved) break;
+        }
+    }
+    // The extents of every point, along the frame found.
+    Vec3 lo(1e300), hi(-1e300);
+    forEachPoint([&](const openvdb::Vec3d& ijk) {
+        const Vec3 p = world(ijk);
+        for (int d = 0; d < 3; ++d) {
+            const double x = glm::dot(p, best.a[d]);
+            lo[d] = std::min(lo[d], x);
+            hi[d] = std::max(hi[d], x);
+        }
+    });
+    OrientedBox ob;
+    ob.half = 0.5 * (hi - lo) + Vec3(grow);
+    const Vec3 mid = 0.5 * (lo + hi);
+    for (int d = 0; d < 3; ++d) ob.axis[d] = best.a[d];
+    ob.centre = mid.x * best.a[0] + mid.y * best.a[1] + mid.z * best.a[2];
+    if (ob.volume() < 0.9 * OrientedBox::of(mSolidWS).volume()) mSolidOriented = ob;
 }
 
 void LevelSet::findSolid() {

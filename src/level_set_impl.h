@@ -48,6 +48,12 @@ class LevelSet {
     /// interpolation is <= 0 lies in one: a tilted torus or a capsule fills a fraction of its
     /// box, and a shadow pyramid that meets none of its parts cannot be blocked by it.
     const std::vector<Box3>& solidPartsWS() const { return mSolidParts; }
+    /// An oriented box around the same points as solidBoundsWS() (every point where the
+    /// trilinear interpolant is <= 0): its axes searched for the least volume from the
+    /// principal axes of the voxels <= 0, kept when that volume is under 0.9 of the solid
+    /// box's (a tilted capsule, cylinder or box), else the solid box itself. Light footprints
+    /// project it (light_footprint.h).
+    const OrientedBox& solidOrientedWS() const { return mSolidOriented; }
     static constexpr int kSolidPartsPerAxis = 8;
     double voxelSize() const { return mVoxelSize; }
 
@@ -100,6 +106,7 @@ class LevelSet {
 
   private:
     void findSolid();
+    void findOrientedSolid();
     // The box and radius (index space, around centreIS) of every point where the interpolant is
     // <= 0, to a 32nd of a voxel; unchanged when no value is <= 0 (level_set_extent.cpp).
     void tightenSolid(const openvdb::Vec3d& centreIS, openvdb::Vec3d& loIS, openvdb::Vec3d& hiIS,
@@ -122,6 +129,7 @@ class LevelSet {
     Box3 mBoundsWS;
     Box3 mSolidWS;
     std::vector<Box3> mSolidParts;
+    OrientedBox mSolidOriented;
     Vec3 mSolidCentre{0.0};
     double mSolidRadius = 0.0;
     double mVoxelSize = 0.0;

@@ -103,8 +103,10 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
         // The footprint (once unbounded by an obstacle that is not a thin level set, nothing
         // more is asked of the others).
         if (!bounded && !unboundedThin) continue;
-        const Box3& box = occ.solidBounds(i);
-        if (box.empty()) continue;  // nothing of it can block
+        if (occ.solidBounds(i).empty()) continue;  // nothing of it can block
+        // Its oriented solid box (the axis-aligned one where that is no tighter): a tilted
+        // capsule's or box's footprint is then that much narrower.
+        const OrientedBox& box = occ.solidOriented(i);
         Footprint f;
         f.obstacle = int(i);
         double u[8], v[8];
@@ -116,8 +118,7 @@ bool LightFootprints::build(const Occluder& occ, const std::vector<uint32_t>* on
             // light's farthest corner), so it meets the box only past s = dBox / reach. What
             // lies beyond that plane projects to a bounded region; the rectangle in (u, v)
             // around its points holds it. Not for an origin on or in the box.
-            const Vec3 gap = glm::max(glm::max(box.lo - origin, origin - box.hi), Vec3(0.0));
-            const double dBox = glm::length(gap);
+            const double dBox = box.distanceTo(origin);
             double reach = 0.0;
             for (const Vec3& q : {light.corner, light.corner + light.edgeU, light.corner + light.edgeV,
                                   light.corner + light.edgeU + light.edgeV})

@@ -359,11 +359,11 @@ void Occluder::add(ObstacleShape shape) {
     if (const auto* s = std::get_if<AnalyticSphere>(&shape)) {
         b.lo = s->center - Vec3(s->radius);
         b.hi = s->center + Vec3(s->radius);
-        solid = {b, s->center, s->radius, {}};
+        solid = {b, s->center, s->radius, {}, {}};
     } else if (const auto* x = std::get_if<AnalyticBox>(&shape)) {
         b.lo = x->lo;
         b.hi = x->hi;
-        solid = {b, 0.5 * (b.lo + b.hi), 0.5 * glm::length(b.hi - b.lo), {}};
+        solid = {b, 0.5 * (b.lo + b.hi), 0.5 * glm::length(b.hi - b.lo), {}, {}};
     } else {
         const LevelSetPtr& ls = std::get<LevelSetPtr>(shape);
         if (!ls) throw std::invalid_argument("Occluder::add: null level set");
@@ -376,9 +376,11 @@ void Occluder::add(ObstacleShape shape) {
         }
         voxel = ls->voxelSize();
         mMinVoxel = mMinVoxel == 0.0 ? voxel : std::min(mMinVoxel, voxel);
-        solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius(), ls->solidPartsWS()};
-        if (b.empty()) solid = {b, Vec3(0.0), 0.0, {}};
+        solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius(), ls->solidPartsWS(),
+                 ls->solidOrientedWS().empty() ? OrientedBox::of(ls->solidBoundsWS()) : ls->solidOrientedWS()};
+        if (b.empty()) solid = {b, Vec3(0.0), 0.0, {}, {}};
     }
+    if (solid.oriented.empty()) solid.oriented = OrientedBox::of(solid.box);
     mSphereKernels.emplace_back();
     if (const auto* s = std::get_if<AnalyticSphere>(&shape)) mSphereKernels.back().push_back({s->center, s->radius});
     mShapes.push_back(std::move(shape));

@@ -141,3 +141,55 @@ TEST_CASE("a level set's kernel balls lie where its interpolant is negative, and
         if (k.name == "capsule") CHECK(balls[0].radius > 0.045 - 0.5 * kVoxel);
     }
 }
+
+TEST_CASE("a level set's oriented solid box holds every point it can block, and is tighter where "
+          "the shape is turned",
+          "[occluder][extent]") {
+    std::mt19937_64 rng(8802);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Case> all = cases();
+    BoxShape crate;
+    crate.size = Vec3(0.3, 0.2, 0.12);
+    all.push_back({"turned box", buildLevelSet(ShapeNode{crate, Similarity::fromSceneTransform(
+                                                                    Vec3(0.011, -0.017, 0.004),
+                                                                    Vec3(20.0, 35.0, 50.0), 1.0)},
+                                               kVoxel, 3.0, "crate")});
+    for (const Case& k : all) {
+        INFO(k.name);
+        Occluder occ;
+        occ.add(k.ls);
+        const OrientedBox& ob = occ.solidOriented(0);
+        const Box3& box = occ.solidBounds(0);
+        const double boxVolume = (box.hi.x - box.lo.x) * (box.hi.y - box.lo.y) * (box.hi.z - box.lo.z);
+        REQUIRE_FALSE(ob.empty());
+        // Across each face of the oriented box, inwards from a voxel past it in steps of a 64th
+        // of a voxel: the first point where the interpolant is <= 0 lies inside, and within
+        // the box's margin (a cell's diagonal and a quarter voxel) of the face.
+        for (int axis = 0; axis < 3; ++axis)
+            for (int side = 0; side < 2; ++side) {
+                const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+                double deepest = -1.0;
+                for (int i = 0; i < 2000; ++i) {
+                    const Vec3 onFace = ob.centre + (2.0 * u(rng) - 1.0) * ob.half[a1] * ob.axis[a1] +
+                                        (2.0 * u(rng) - 1.0) * ob.half[a2] * ob.axis[a2] +
+                                        (side ? 1.0 : -1.0) * ob.half[axis] * ob.axis[axis];
+                    const Vec3 inward = (side ? -1.0 : 1.0) * ob.axis[axis];
+                    for (double s = -kVoxel; s < 4.0 * kVoxel; s += kVoxel / 64.0) {
+                        if (sampleLevelSet(*k.ls, onFace + s * inward) <= 0.0) {
+                            REQUIRE(s >= 0.0);
+                            deepest = deepest < 0.0 ? s : std::min(deepest, s);
+                            break;
+                        }
+                    }
+                }
+                INFO("axis " << axis << " side " << side);
+                CHECK(deepest >= 0.0);
+                CHECK(deepest < 2.5 * kVoxel);
+            }
+        CAPTURE(ob.volume(), boxVolume);
+        CHECK(ob.volume() <= boxVolume * (1.0 + 1e-9));
+        // Turned shapes fill a small part of their axis-aligned box.
+        if (k.name == "torus" || k.name == "capsule" || k.name == "turned box")
+            CHECK(ob.volume() < 0.75 * boxVolume);
+    }
+}

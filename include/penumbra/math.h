@@ -4,6 +4,9 @@
 /// unless a name ends in `Deg`.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
+
 #include <glm/vec2.hpp>
 #include <glm/vec3.hpp>
 #include <glm/mat3x3.hpp>
@@ -50,6 +53,36 @@ struct Box3 {
         }
         return true;
     }
+};
+
+/// A box with its own orthonormal axes: centre +- half[k] along axis[k]. Empty when half.x < 0.
+struct OrientedBox {
+    Vec3 centre{0.0};
+    Vec3 axis[3] = {Vec3(1.0, 0.0, 0.0), Vec3(0.0, 1.0, 0.0), Vec3(0.0, 0.0, 1.0)};
+    Vec3 half{-1.0};
+
+    bool empty() const { return half.x < 0.0; }
+    /// The axis-aligned box as an oriented one.
+    static OrientedBox of(const Box3& b) {
+        OrientedBox o;
+        if (b.empty()) return o;
+        o.centre = 0.5 * (b.lo + b.hi);
+        o.half = 0.5 * (b.hi - b.lo);
+        return o;
+    }
+    /// Corner c in 0..7: bit k picks +half[k] along axis[k] (Box3::corner's order).
+    Vec3 corner(int c) const {
+        return centre + ((c & 1) ? half.x : -half.x) * axis[0] + ((c & 2) ? half.y : -half.y) * axis[1] +
+               ((c & 4) ? half.z : -half.z) * axis[2];
+    }
+    /// Distance from p to the box (0 inside).
+    double distanceTo(const Vec3& p) const {
+        const Vec3 d = p - centre;
+        Vec3 e(0.0);
+        for (int k = 0; k < 3; ++k) e[k] = std::max(0.0, std::abs(d.x * axis[k].x + d.y * axis[k].y + d.z * axis[k].z) - half[k]);
+        return std::sqrt(e.x * e.x + e.y * e.y + e.z * e.z);
+    }
+    double volume() const { return empty() ? 0.0 : 8.0 * half.x * half.y * half.z; }
 };
 
 /// Golden-section search for the minimum of `f`, unimodal on [a, z]: narrows the bracket until

@@ -146,6 +146,9 @@ public:
     /// A level set's solid parts (LevelSet::solidPartsWS: boxes holding every point where it
     /// can block a ray; mayBlockIn asks one of them to meet the pyramid); empty otherwise.
     const std::vector<Box3>& solidParts(size_t i) const { return mSolid[i].parts; }
+    /// An oriented box around the same as solidBounds(i) (LevelSet::solidOrientedWS; the
+    /// solid box itself for analytic shapes and where no oriented box is tighter).
+    const OrientedBox& solidOriented(size_t i) const { return mSolid[i].oriented; }
     /// A ball that blocks every segment meeting it (one that starts outside it).
     static constexpr int kKernelBalls = 8;
     struct KernelBall {
@@ -193,6 +196,7 @@ private:
         Vec3 centre{0.0};
         double radius = 0.0;
         std::vector<Box3> parts;  // a level set's solid parts (LevelSet::solidPartsWS); may be empty
+        OrientedBox oriented;     // solidOriented(i)
     };
     std::vector<Solid> mSolid;  // index-aligned with mShapes
     std::vector<std::vector<KernelBall>> mSphereKernels;  // index-aligned: kernelBalls(i)
