@@ -282,7 +282,7 @@ LevelSet::LevelSet(openvdb::FloatGrid::ConstPtr grid) : mGrid(std::move(grid)) {
 // The oriented solid box: a frame that starts from the better of the world axes and the
 // principal axes of the voxels <= 0 (active ones, and active tiles by their corners; the inside
 // beyond the band is enclosed by them), turned about each of its axes by smaller and smaller
-// angles while the volume falls (on at most kSearchPoints of those points), then the extents of
+// angles while the volume falls (on about kSearchPoints of those points), then the extents of
 // every point along it, grown by a cell's diagonal and a quarter voxel: a point where the
 // interpolant is <= 0 lies in a cell with such a corner. Kept when under 0.9 of the volume of
 // the axis-aligned solid box, which is tighter (a 32nd of a voxel) where the axes agree.
@@ -307,17 +307,16 @@ void LevelSet::findOrientedSolid() {
         const openvdb::Vec3d w = mGrid->indexToWorld(ijk);
         return Vec3(w.x(), w.y(), w.z());
     };
-    size_t count = 0;
-    forEachPoint([&](const openvdb::Vec3d&) { ++count; });
-    if (count < 4) return;
-    constexpr size_t kSearchPoints = 20000;
-    const size_t stride = std::max<size_t>(1, count / kSearchPoints);
+    // The search's points: every stride-th, the stride from the active voxels' count (about
+    // twice the points <= 0 on a level set's band).
+    constexpr size_t kSearchPoints = 8000;
+    const size_t stride = std::max<size_t>(1, size_t(mGrid->activeVoxelCount()) / (2 * kSearchPoints));
     std::vector<Vec3> pts;
-    pts.reserve(count / stride + 1);
     size_t k = 0;
     forEachPoint([&](const openvdb::Vec3d& ijk) {
         if (k++ % stride == 0) pts.push_back(world(ijk));
     });
+    if (pts.size() < 4) return;
     const double grow = (std::sqrt(3.0) + 0.25) * mVoxelSize;
     struct Frame {
         Vec3 a[3];
