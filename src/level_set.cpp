@@ -321,19 +321,17 @@ void LevelSet::findOrientedSolid() {
     struct Frame {
         Vec3 a[3];
     };
-    auto extents = [&](const Frame& f, const std::vector<Vec3>& ps, Vec3& lo, Vec3& hi) {
-        lo = Vec3(1e300);
-        hi = Vec3(-1e300);
-        for (const Vec3& p : ps)
-            for (int d = 0; d < 3; ++d) {
-                const double x = glm::dot(p, f.a[d]);
-                lo[d] = std::min(lo[d], x);
-                hi[d] = std::max(hi[d], x);
-            }
+    // Widens [lo, hi] (coordinates along the frame's axes) to hold p.
+    auto widen = [](const Frame& f, const Vec3& p, Vec3& lo, Vec3& hi) {
+        for (int d = 0; d < 3; ++d) {
+            const double x = glm::dot(p, f.a[d]);
+            lo[d] = std::min(lo[d], x);
+            hi[d] = std::max(hi[d], x);
+        }
     };
     auto volume = [&](const Frame& f) {
-        Vec3 lo, hi;
-        extents(f, pts, lo, hi);
+        Vec3 lo(1e300), hi(-1e300);
+        for (const Vec3& p : pts) widen(f, p, lo, hi);
         return (hi.x - lo.x + 2.0 * grow) * (hi.y - lo.y + 2.0 * grow) * (hi.z - lo.z + 2.0 * grow);
     };
     auto orthonormal = [](Frame f) {
@@ -385,14 +383,7 @@ void LevelSet::findOrientedSolid() {
     }
     // The extents of every point, along the frame found.
     Vec3 lo(1e300), hi(-1e300);
-    forEachPoint([&](const openvdb::Vec3d& ijk) {
-        const Vec3 p = world(ijk);
-        for (int d = 0; d < 3; ++d) {
-            const double x = glm::dot(p, best.a[d]);
-            lo[d] = std::min(lo[d], x);
-            hi[d] = std::max(hi[d], x);
-        }
-    });
+    forEachPoint([&](const openvdb::Vec3d& ijk) { widen(best, world(ijk), lo, hi); });
     OrientedBox ob;
     ob.half = 0.5 * (hi - lo) + Vec3(grow);
     const Vec3 mid = 0.5 * (lo + hi);

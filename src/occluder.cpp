@@ -377,9 +377,10 @@ void Occluder::add(ObstacleShape shape) {
         voxel = ls->voxelSize();
         mMinVoxel = mMinVoxel == 0.0 ? voxel : std::min(mMinVoxel, voxel);
         solid = {ls->solidBoundsWS(), ls->solidCentreWS(), ls->solidRadius(), ls->solidPartsWS(),
-                 ls->solidOrientedWS().empty() ? OrientedBox::of(ls->solidBoundsWS()) : ls->solidOrientedWS()};
+                 ls->solidOrientedWS()};
         if (b.empty()) solid = {b, Vec3(0.0), 0.0, {}, {}};
     }
+    // Analytic shapes, and level sets with no oriented box: the solid box itself.
     if (solid.oriented.empty()) solid.oriented = OrientedBox::of(solid.box);
     mSphereKernels.emplace_back();
     if (const auto* s = std::get_if<AnalyticSphere>(&shape)) mSphereKernels.back().push_back({s->center, s->radius});

@@ -32,6 +32,15 @@ struct Case {
     LevelSetPtr ls;
 };
 
+// How far along unit `inward` from `start` the interpolant is first <= 0, marching from a voxel
+// before `start` in steps of a 64th of a voxel to `reach` past it (negative: before `start`);
+// NaN when it stays positive.
+double firstInside(const LevelSet& ls, const Vec3& start, const Vec3& inward, double reach) {
+    for (double s = -kVoxel; s < reach; s += kVoxel / 64.0)
+        if (sampleLevelSet(ls, start + s * inward) <= 0.0) return s;
+    return std::nan("");
+}
+
 std::vector<Case> cases() {
     TorusShape t;
     t.center = Vec3(0.013, -0.021, 0.007);
@@ -92,16 +101,13 @@ TEST_CASE("a level set's solid box and sphere hold every point it can block, and
                     Vec3 p(0.0);
                     p[a1] = box.lo[a1] + (box.hi[a1] - box.lo[a1]) * u(rng);
                     p[a2] = box.lo[a2] + (box.hi[a2] - box.lo[a2]) * u(rng);
-                    const double face = side ? box.hi[axis] : box.lo[axis];
-                    const double inward = side ? -1.0 : 1.0;
-                    for (double s = -kVoxel; s < 2.0 * kVoxel; s += kVoxel / 64.0) {
-                        p[axis] = face + inward * s;
-                        if (sampleLevelSet(*k.ls, p) <= 0.0) {
-                            REQUIRE(s >= 0.0);
-                            deepest = deepest < 0.0 ? s : std::min(deepest, s);
-                            break;
-                        }
-                    }
+                    p[axis] = side ? box.hi[axis] : box.lo[axis];
+                    Vec3 inward(0.0);
+                    inward[axis] = side ? -1.0 : 1.0;
+                    const double s = firstInside(*k.ls, p, inward, 2.0 * kVoxel);
+                    if (std::isnan(s)) continue;
+                    REQUIRE(s >= 0.0);
+                    deepest = deepest < 0.0 ? s : std::min(deepest, s);
                 }
                 INFO("axis " << axis << " side " << side);
                 CHECK(deepest >= 0.0);
@@ -174,13 +180,10 @@ TEST_CASE("a level set's oriented solid box holds every point it can block, and 
                                         (2.0 * u(rng) - 1.0) * ob.half[a2] * ob.axis[a2] +
                                         (side ? 1.0 : -1.0) * ob.half[axis] * ob.axis[axis];
                     const Vec3 inward = (side ? -1.0 : 1.0) * ob.axis[axis];
-                    for (double s = -kVoxel; s < 4.0 * kVoxel; s += kVoxel / 64.0) {
-                        if (sampleLevelSet(*k.ls, onFace + s * inward) <= 0.0) {
-                            REQUIRE(s >= 0.0);
-                            deepest = deepest < 0.0 ? s : std::min(deepest, s);
-                            break;
-                        }
-                    }
+                    const double s = firstInside(*k.ls, onFace, inward, 4.0 * kVoxel);
+                    if (std::isnan(s)) continue;
+                    REQUIRE(s >= 0.0);
+                    deepest = deepest < 0.0 ? s : std::min(deepest, s);
                 }
                 INFO("axis " << axis << " side " << side);
                 CHECK(deepest >= 0.0);
