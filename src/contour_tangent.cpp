@@ -385,7 +385,25 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
     const double triangle = std::abs(edgeF(a.c, arc.k) + edgeF(arc.k, b.c) + edgeF(b.c, a.c));
     if (triangle < 1.5 * thr) {
         arc.w = 1.0;
-        return arcHolds(a, b, 0.25 * (a.c + b.c) + 0.5 * arc.k, x0, y0, s);
+        const Vec3 conicMid = 0.25 * (a.c + b.c) + 0.5 * arc.k;
+        if (!arcHolds(a, b, conicMid, x0, y0, s)) return false;
+        // Where K lies near one end, the parabola's middle lies near that end too, and the
+        // probes beside it say nothing of the chord's other half: the probes are asked again
+        // beside the parabola's point over the chord's middle. (A bumpy silhouette left such
+        // a triangle over a third of its chord, a lattice unit deep: the bunny's ground at
+        // n = 4, 1.7% of the unoccluded F too bright, within its bound; now 0.75%.)
+        {
+            const double len2 = len * len;
+            double lo = 0.0, hi = 1.0;
+            for (int it = 0; it < 30; ++it) {
+                const double t = 0.5 * (lo + hi);
+                const Vec3 p = conicPoint(a.c, arc.k, b.c, 1.0, t);
+                (glm::dot(p - a.c, chord) / len2 < 0.5 ? lo : hi) = t;
+            }
+            const Vec3 over = conicPoint(a.c, arc.k, b.c, 1.0, 0.5 * (lo + hi));
+            if (glm::length(over - conicMid) > unit && !arcHolds(a, b, over, x0, y0, s)) return false;
+        }
+        return true;
     }
     // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
     const Vec3 m = 0.5 * (a.c + b.c);
