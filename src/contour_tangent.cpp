@@ -392,18 +392,11 @@ bool ContourIntegrator::Lattice::tangentArc(const Vertex& a, const Vertex& b, in
         // beside the parabola's point over the chord's middle. (A bumpy silhouette left such
         // a triangle over a third of its chord, a lattice unit deep: the bunny's ground at
         // n = 4, 1.7% of the unoccluded F too bright, within its bound; now 0.75%.)
-        {
-            const double len2 = len * len;
-            double lo = 0.0, hi = 1.0;
-            for (int it = 0; it < 30; ++it) {
-                const double t = 0.5 * (lo + hi);
-                const Vec3 p = conicPoint(a.c, arc.k, b.c, 1.0, t);
-                (glm::dot(p - a.c, chord) / len2 < 0.5 ? lo : hi) = t;
-            }
-            const Vec3 over = conicPoint(a.c, arc.k, b.c, 1.0, 0.5 * (lo + hi));
-            if (glm::length(over - conicMid) > unit && !arcHolds(a, b, over, x0, y0, s)) return false;
-        }
-        return true;
+        // Along the chord the parabola is at 2 t (1 - t) along + t^2 (K's fraction `along`),
+        // 1/2 at the root of (1 - 2 along) t^2 + 2 along t - 1/2 taken in its stable form.
+        const double t = 1.0 / (2.0 * along + std::sqrt(4.0 * along * along + 2.0 - 4.0 * along));
+        const Vec3 over = conicPoint(a.c, arc.k, b.c, 1.0, t);
+        return glm::length(over - conicMid) <= unit || arcHolds(a, b, over, x0, y0, s);
     }
     // One ray on the line from the chord's middle to K, at the lattice point nearest 3/4.
     const Vec3 m = 0.5 * (a.c + b.c);
