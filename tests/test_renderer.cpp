@@ -58,6 +58,21 @@ RenderSettings settingsFor(Method m, int threads = 1) {
     return rs;
 }
 
+// The default pipeline and per-pixel ACI (no coherence) on the same scene, w x h, two threads.
+struct PipelineAndEach {
+    RenderResult pipeline, each;
+};
+PipelineAndEach pipelineAndEach(const Scene& scene, int w, int h) {
+    RenderSettings rs = settingsFor(Method::Aci, 2);
+    rs.width = w;
+    rs.height = h;
+    PipelineAndEach out;
+    out.pipeline = render(scene, rs);
+    rs.method = Method::AciPixel;
+    out.each = render(scene, rs);
+    return out;
+}
+
 struct Diff {
     double mean8 = 0.0;  // mean over pixels and channels of 255 |a - b|
     double max8 = 0.0;
@@ -855,11 +870,7 @@ TEST_CASE("checked interpolation puts no light into an umbra (the default scene 
     // samples, and the quartic put up to 0.0033 of F there (6.8 of 255 too bright). Samples
     // must now agree on whether they see any of the light, as on their blockers.
     const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/default.json");
-    RenderSettings rs = settingsFor(Method::Aci, 2);
-    rs.width = rs.height = 200;
-    const RenderResult pipeline = render(scene, rs);
-    rs.method = Method::AciPixel;
-    const RenderResult each = render(scene, rs);
+    const auto [pipeline, each] = pipelineAndEach(scene, 200, 200);
     int umbra = 0;
     double worst = 0.0;
     for (int y = 0; y < 200; ++y)
@@ -888,12 +899,7 @@ TEST_CASE("no interpolation across pixels whose tangent planes cut the light (th
     const ViewRay centre = PinholeCamera(cam).ray(100.0, 102.0);
     cam.lookAt = cam.eye + centre.direction;
     cam.fovDeg = 2.0 * std::atan(0.08 * std::tan(0.5 * cam.fovDeg * kPi / 180.0)) * 180.0 / kPi;
-    RenderSettings rs = settingsFor(Method::Aci, 2);
-    rs.width = 200;
-    rs.height = 16;
-    const RenderResult pipeline = render(scene, rs);
-    rs.method = Method::AciPixel;
-    const RenderResult each = render(scene, rs);
+    const auto [pipeline, each] = pipelineAndEach(scene, 200, 16);
     int shaded = 0;
     double worst = 0.0;
     for (int y = 0; y < 16; ++y)
