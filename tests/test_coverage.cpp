@@ -666,6 +666,39 @@ TEST_CASE("tangent arcs on a thin triangle are probed over the chord's middle to
     CHECK(std::abs(coarse.formFactor - ref) <= 0.01 * full);
 }
 
+TEST_CASE("on the coarser lattice a long hyperbolic arc is probed over its chord's thirds (the bunny's foot)",
+          "[aci][coverage]") {
+    // Pixel (86, 139) of vdb_scenes/bunny.json at 200 x 200: a ground point in front of the
+    // bunny, whose render takes the coarser lattice (adaptive steps: n = 4 for the asked 5). One
+    // piece ran 33 lattice units across a first-level square, its arc a hyperbola (w = 3.5)
+    // through the shoulder ray, while the bumpy silhouette turned twice between its ends and ran
+    // up to 6 units outside the arc two thirds of the way along: F came out 0.025704 against
+    // 0.026349 from 262,144 rays (2.4% of F too dark, within its bound of 0.0138). Probed
+    // beside the chord's thirds too, and with the coarser lattice's halved strip threshold,
+    // 0.026339. Reference: the same estimator at n = 6 on the finer lattice throughout.
+    const Scene scene = loadScene(std::string(PENUMBRA_SOURCE_DIR) + "/vdb_scenes/bunny.json");
+    const Occluder occ = scene.makeOccluder();
+    occ.prepareClearance();
+    Occluder::Query q = occ.makeQuery();
+    const RectLight& light = scene.lights.at(0);
+    const Receiver r{Vec3(-0.002349156, -0.533576457, 0.0), kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(occ, r.point, 1e-9);
+    s.steps = 5;
+    s.adaptiveSteps = true;
+    AciSettings fine = s;
+    fine.steps = 6;
+    fine.adaptiveSteps = false;
+    const Estimate coarse = ContourIntegrator(s).evaluate(r, light, q);
+    REQUIRE(coarse.counts.coarserEvaluations == 1);  // the case under test
+    const double ref = ContourIntegrator(fine).evaluate(r, light, q).formFactor;
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(coarse.formFactor, coarse.errorBound, ref, full);
+    CHECK(std::abs(coarse.formFactor - ref) <= coarse.errorBound);
+    CHECK(std::abs(coarse.formFactor - ref) <= 0.001 * full);
+}
+
 TEST_CASE("coverage: a vertex that a neighbour's finer samples contradict (random scene 6)",
           "[aci][coverage]") {
     // tests/scenes/random_seed6.json is bench_random's scene for seed 6 (bench/bench_random.cpp);
