@@ -501,7 +501,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
     int finerRedos = 0;
     for (;;) {
         Lattice lat(*this, r, light, query, grid, n, footprintsBuilt);
-        lat.coarser = coarser != 0;
+        lat.coarser = finerRedos < coarser;  // a finer redo comes back to the asked lattice
         for (const Carried& c : carried) {
             const size_t idx = lat.index(c.q);
             sc.mStamp[idx] = sc.mGeneration;
