@@ -1136,6 +1136,7 @@ private:
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
         AciSettings a = mSettings.aci;
         a.adaptiveSteps = mSettings.adaptiveSteps;
+        a.extendCoverage = 0.0;  // AciSettings::extendCoverage: point queries only
         a.rayOffset = s.rayOffset;
         a.reuseCorners = false;
         mTs.integrator.setSettings(a);
@@ -1160,6 +1161,7 @@ private:
     Estimate evaluate(int x, bool adapt) {
         AciSettings s = mSettings.aci;
         s.adaptiveSteps = mSettings.adaptiveSteps;
+        s.extendCoverage = 0.0;  // AciSettings::extendCoverage: point queries only
         s.grid = mGrid;
         s.reuseCorners = mReuse;
         s.rayOffset = rayOffset(x);
