@@ -602,13 +602,13 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 if (occ.solidBounds(i).empty()) continue;
                 const std::vector<Occluder::KernelBall>& balls = occ.kernelBalls(i);
                 for (const Occluder::KernelBall& b : balls) add(b.centre, b.radius);
-                // A level set too thin for kernel balls: its deepest voxel, which its solid
-                // sphere's centre need not be near (a torus's lies in its hole: seed 7003,
-                // evaluate()'s finer redo).
-                if (balls.empty()) {
-                    const Occluder::KernelBall deep = occ.deepestPoint(i);
-                    if (deep.radius > 0.0) add(deep.centre, deep.radius);
-                }
+                // A level set too thin for kernel balls: its deep points, the deepest voxel and
+                // others spread over it, which its solid sphere's centre need not be near (a
+                // torus's lies in its hole: seed 7003, evaluate()'s finer redo; a capsule's end
+                // near a triangle light hid 4.3% of F0 from a far ground point while its deepest
+                // voxel's cone missed the light: bench_bounds --lights mixed --fog, seed 8510).
+                if (balls.empty())
+                    for (const Occluder::KernelBall& deep : occ.deepPoints(i)) add(deep.centre, deep.radius);
                 // And its solid sphere's centre, where that is not a kernel ball's: a shadow of
                 // the obstacle's outer part can hold a corner of the light that the kernel balls'
                 // cones miss (seed 2708 again, from farther points).

@@ -302,24 +302,47 @@ struct Occluder::FarField {
         return ballsValue;
     }
 
-    /// The fine grid's active voxel of least value (Occluder::deepestPoint).
-    const Occluder::KernelBall& deepest() const {
+    /// Points deep inside the fine surface, spread over the obstacle (Occluder::deepPoints):
+    /// the fine grid's active voxel of least value, then, among the voxels at least half as
+    /// deep, each next the one farthest from those already kept (up to kDeepPoints), so that a
+    /// thin obstacle's ends are among them.
+    const std::vector<Occluder::KernelBall>& deep() const {
         std::call_once(deepestOnce, [&] {
             const openvdb::FloatGrid& fine = levelSet->grid();
             float least = std::numeric_limits<float>::infinity();
-            openvdb::Coord at;
-            for (auto it = fine.cbeginValueOn(); it; ++it)
-                if (*it < least) least = *it, at = it.getCoord();
+            for (auto it = fine.cbeginValueOn(); it; ++it) least = std::min(least, *it);
             if (!(least < 0.0f)) return;
-            const openvdb::Vec3d w = fine.indexToWorld(at);
-            deepestValue = {Vec3(w.x(), w.y(), w.z()), -double(least)};
+            std::vector<Occluder::KernelBall> deepVoxels;
+            for (auto it = fine.cbeginValueOn(); it; ++it) {
+                if (!(*it <= 0.5f * least)) continue;
+                const openvdb::Vec3d w = fine.indexToWorld(it.getCoord());
+                deepVoxels.push_back({Vec3(w.x(), w.y(), w.z()), -double(*it)});
+            }
+            // The deepest first (the first of least value in the grid's order), then farthest
+            // point sampling: gap[k] is voxel k's distance to the nearest point kept.
+            size_t next = 0;
+            for (size_t k = 0; k < deepVoxels.size(); ++k)
+                if (deepVoxels[k].radius > deepVoxels[next].radius) next = k;
+            std::vector<double> gap(deepVoxels.size(), std::numeric_limits<double>::infinity());
+            const double voxel = fine.voxelSize()[0];
+            while (deepValue.size() < size_t(Occluder::kDeepPoints)) {
+                const Occluder::KernelBall kept = deepVoxels[next];
+                deepValue.push_back(kept);
+                double far = 0.0;
+                for (size_t k = 0; k < deepVoxels.size(); ++k) {
+                    gap[k] = std::min(gap[k], glm::length(deepVoxels[k].centre - kept.centre));
+                    if (gap[k] > far) far = gap[k], next = k;
+                }
+                // Nothing left farther than the obstacle's depth (two voxels at least) from them.
+                if (!(far > std::max(deepValue.front().radius, 2.0 * voxel))) break;
+            }
         });
-        return deepestValue;
+        return deepValue;
     }
 
     LevelSetPtr levelSet;
     mutable std::once_flag deepestOnce;
-    mutable Occluder::KernelBall deepestValue;
+    mutable std::vector<Occluder::KernelBall> deepValue;
     mutable std::once_flag errorOnce;
     mutable std::unique_ptr<CompanionError> errorValue;
     mutable std::once_flag ballsOnce;
@@ -331,8 +354,9 @@ const std::vector<Occluder::KernelBall>& Occluder::kernelBalls(size_t i) const {
     return mSphereKernels[i];
 }
 
-Occluder::KernelBall Occluder::deepestPoint(size_t i) const {
-    return mFar[i] ? mFar[i]->deepest() : KernelBall{};
+const std::vector<Occluder::KernelBall>& Occluder::deepPoints(size_t i) const {
+    static const std::vector<KernelBall> none;
+    return mFar[i] ? mFar[i]->deep() : none;
 }
 
 Box3 Occluder::kernelBox(size_t i) const {

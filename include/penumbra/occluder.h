@@ -161,10 +161,13 @@ public:
     /// companion when first asked for); none for other kinds. (Balls of the cell tables'
     /// inside cells, a voxel or two deep, were tried before: no fewer rays; docs/BENCHMARKS.md.)
     const std::vector<KernelBall>& kernelBalls(size_t i) const;
-    /// A level set's deepest point: the centre of its fine voxel of least value, and that
-    /// value's depth as the radius (found when first asked for). It proves nothing: it is where a
-    /// ray most surely meets an obstacle too thin for kernel balls. Radius 0 for other kinds.
-    KernelBall deepestPoint(size_t i) const;
+    /// A level set's deep points (found when first asked for): the centre of its fine voxel of
+    /// least value, then up to kDeepPoints - 1 more among the voxels at least half as deep, each
+    /// the farthest from those before (farthest point sampling), each with its depth as the
+    /// radius. They prove nothing: they are where rays most surely meet an obstacle too thin for
+    /// kernel balls, spread so that its ends are among them. Empty for other kinds.
+    static constexpr int kDeepPoints = 8;
+    const std::vector<KernelBall>& deepPoints(size_t i) const;
     /// An analytic box itself (every segment meeting it is blocked); empty for other kinds.
     Box3 kernelBox(size_t i) const;
     /// Smallest voxel size over the level sets, 0 when there are none.
