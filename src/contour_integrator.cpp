@@ -557,10 +557,13 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             for (int k = 0; k < 4; ++k)
                 frameCos = std::min(frameCos, glm::dot(glm::normalize(light.point(k & 1, k >> 1) - origin), towards));
             const double frameSin = std::sqrt(std::max(0.0, 1.0 - frameCos * frameCos));
-            auto add = [&](const Vec3& c, double radius) {
+            // `reach`: the ball counts as that many times its radius (a thin level set's deep
+            // point, whose ball is only as wide as the obstacle is thick: its ends reach beyond).
+            auto add = [&](const Vec3& c, double ballRadius, double reach = 1.0) {
                 const Vec3 d = c - origin;
                 const double dist = glm::length(d);
-                if (!(dist > radius)) return;
+                if (!(dist > ballRadius)) return;
+                const double radius = std::min(reach * ballRadius, dist * (1.0 - 1e-9));
                 const double along = glm::dot(d, ln);
                 if (along * toLight > 0.0 && std::abs(along) < std::abs(toLight)) {
                     const Vec2 uv = light.coordinates(origin + (toLight / along) * d);
@@ -608,7 +611,8 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
                 // near a triangle light hid 4.3% of F0 from a far ground point while its deepest
                 // voxel's cone missed the light: bench_bounds --lights mixed --fog, seed 8510).
                 if (balls.empty())
-                    for (const Occluder::KernelBall& deep : occ.deepPoints(i)) add(deep.centre, deep.radius);
+                    for (const Occluder::KernelBall& deep : occ.deepPoints(i))
+                        add(deep.centre, deep.radius, kDeepPointReach);
                 // And its solid sphere's centre, where that is not a kernel ball's: a shadow of
                 // the obstacle's outer part can hold a corner of the light that the kernel balls'
                 // cones miss (seed 2708 again, from farther points).

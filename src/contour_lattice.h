@@ -119,6 +119,12 @@ constexpr double kCoverageCell = 2.0;
 // this many units aims one more ray across the silhouette its clearance predicts
 // (Lattice::acrossNearSilhouette).
 constexpr double kSilhouetteAimReach = 4.0;
+// A thin level set's deep point (Occluder::deepPoints) gets a coverage middle when the light
+// point whose ray passes nearest it lies within this many times its depth: the obstacle reaches
+// beyond the ball the depth proves (a capsule's end cap hid 4.3% of F0 from a far ground point
+// with its rim: found with three depths, not with two; bench_bounds --lights mixed --fog, seed
+// 8510).
+constexpr double kDeepPointReach = 3.0;
 constexpr double kScanCell = 8.0;  // cells of the first scan, quartered where it matters
 // A ray passing closest to a surface within this many ray offsets of its start grazes the
 // receiver's own surface (untrustedTangent).
