@@ -14,6 +14,7 @@
 //
 //   bench_bounds [--seeds N] [--first-seed S] [--size 200] [--stride 4] [--samples 4096]
 //                [--confirm 1048576] [--threads 2] [--steps 5] [--out DIR] [--lights rect]
+//                [--fog] [--light-scale 1] [--render]
 //
 // --lights rect|mixed: the scenes' lights (bench/random_scenes.h, LightShapes): rect, the
 // rectangles of every figure before 2026-12-05; mixed, a seed's light made a rectangle, disc,
@@ -23,6 +24,8 @@
 // --light-scale S: each scene's light grown S times about its centre once the rest is drawn
 // (radiance over S^2): lights far larger than their distance from the receivers.
 // --steps: ACI's dichotomy steps n (default 5, as probe's and render's).
+// --render: each point evaluated as `penumbra render` evaluates a pixel (adaptive steps on, one
+// coverage allowance: AciSettings::extendCoverage 0) instead of as `penumbra probe` does.
 //
 // Each scene is written to DIR/seed_S.json (default /tmp/penumbra_bounds) before it is parsed.
 #include <algorithm>
@@ -63,6 +66,7 @@ struct Args {
     std::string lights = "rect";
     bool fog = false;
     double lightScale = 1.0;
+    bool render = false;  // the renderer's evaluation settings instead of probe's
 };
 
 // A receiver point seen through a pixel: the nearest receiver plane, or the obstacle that a
@@ -147,7 +151,8 @@ int main(int argc, char** argv) {
                              {"--out", &a.out},
                              {"--lights", &a.lights},
                              {"--fog", std::function<void()>([&a] { a.fog = true; })},
-                             {"--light-scale", &a.lightScale}});
+                             {"--light-scale", &a.lightScale},
+                             {"--render", std::function<void()>([&a] { a.render = true; })}});
         if (a.seeds < 1 || a.size < 1 || a.stride < 1 || a.samples < 1 || a.confirm < 1 ||
             a.threads < 1 || a.steps < 1 || a.steps > 12)
             bench::failUsage("bench_bounds", "--seeds, --size, --stride, --samples, --confirm "
@@ -156,8 +161,9 @@ int main(int argc, char** argv) {
         std::filesystem::create_directories(a.out);
         tbb::global_control threads(tbb::global_control::max_allowed_parallelism, a.threads);
         std::printf("bench_bounds: default ACI's error bound against mc-ratio (%d rays; %d to "
-                    "confirm), pixels every %d of %d x %d, %d threads, --aci-steps %d\n\n",
-                    a.samples, a.confirm, a.stride, a.size, a.size, a.threads, a.steps);
+                    "confirm), pixels every %d of %d x %d, %d threads, --aci-steps %d, %s's settings\n\n",
+                    a.samples, a.confirm, a.stride, a.size, a.size, a.threads, a.steps,
+                    a.render ? "render" : "probe");
         std::printf("%-8s %7s %9s %10s %9s %9s %12s %14s %8s\n", "scene", "points", "shadowed",
                     "violations", "off>0.1%", "rays/pt", "max err/F0", "max err/bound", "seconds");
         int totalPoints = 0, totalViolations = 0, totalOff = 0;
@@ -198,6 +204,10 @@ int main(int argc, char** argv) {
                 s.gradient = false;
                 s.steps = a.steps;
                 s.rayOffset = receiverRayOffset(occ, p.r.point, 1e-9);
+                if (a.render) {  // as SpanShader::evaluate sets them
+                    s.adaptiveSteps = RenderSettings{}.adaptiveSteps;
+                    s.extendCoverage = 0.0;
+                }
                 ContourIntegrator& aci = integrators.local();
                 aci.setSettings(s);
                 // estimate(): aciThroughMedia where fog lies between (--fog), else evaluate().
