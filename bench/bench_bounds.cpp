@@ -200,14 +200,10 @@ int main(int argc, char** argv) {
                 p.full = unoccludedFormFactor(light, p.r);
                 if (!(p.full > 0.0)) return;
                 p.seen = true;
-                AciSettings s;
+                AciSettings s = a.render ? RenderSettings{}.pixelAci() : AciSettings{};
                 s.gradient = false;
                 s.steps = a.steps;
                 s.rayOffset = receiverRayOffset(occ, p.r.point, 1e-9);
-                if (a.render) {  // as SpanShader::evaluate sets them
-                    s.adaptiveSteps = RenderSettings{}.adaptiveSteps;
-                    s.extendCoverage = 0.0;
-                }
                 ContourIntegrator& aci = integrators.local();
                 aci.setSettings(s);
                 // estimate(): aciThroughMedia where fog lies between (--fog), else evaluate().

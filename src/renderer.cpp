@@ -1134,9 +1134,7 @@ private:
         McSettings s = mSettings.mc;
         s.rayOffset = rayOffset(x);
         s.seed = mcSeed(uint64_t(x), uint64_t(mRow), uint64_t(mLightIndex), mSettings.mc.seed);
-        AciSettings a = mSettings.aci;
-        a.adaptiveSteps = mSettings.adaptiveSteps;
-        a.extendCoverage = 0.0;  // AciSettings::extendCoverage: point queries only
+        AciSettings a = mSettings.pixelAci();
         a.rayOffset = s.rayOffset;
         a.reuseCorners = false;
         mTs.integrator.setSettings(a);
@@ -1159,9 +1157,7 @@ private:
     }
 
     Estimate evaluate(int x, bool adapt) {
-        AciSettings s = mSettings.aci;
-        s.adaptiveSteps = mSettings.adaptiveSteps;
-        s.extendCoverage = 0.0;  // AciSettings::extendCoverage: point queries only
+        AciSettings s = mSettings.pixelAci();
         s.grid = mGrid;
         s.reuseCorners = mReuse;
         s.rayOffset = rayOffset(x);

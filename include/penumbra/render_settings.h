@@ -210,6 +210,16 @@ struct RenderSettings {
     /// Rays per in-scattering estimate (stratified over each light's area).
     int volumeSamples = 64;
 
+    /// The ACI settings a pixel's evaluation uses: `aci` with adaptiveSteps, and one coverage
+    /// allowance (AciSettings::extendCoverage 0: the second is for point queries only). The
+    /// renderer adds the pixel's ray offset and its span's grid and corner reuse.
+    AciSettings pixelAci() const {
+        AciSettings a = aci;
+        a.adaptiveSteps = adaptiveSteps;
+        a.extendCoverage = 0.0;
+        return a;
+    }
+
     /// Every key of the JSON model, in its order (the file comment's list).
     static const std::vector<std::string>& keys();
     /// The integer keys and their ranges.
