@@ -10,6 +10,7 @@
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
 //                [--adjudicate-samples 1048576] [--lights rect|mixed] [--fog] [--light-scale S]
+//                [--paper-ladder]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -24,6 +25,8 @@
 // default, rect, is every figure's before 2026-12-05). --fog adds one or two fog volumes to
 // each seed's scene (bench/random_scenes.h, "Volumes"; with either --lights). --light-scale S
 // grows each scene's light S times about its centre once the rest is drawn (radiance over S^2).
+// --paper-ladder also renders the paper's mode at finer settings until its mean difference is
+// at most default ACI's (the paper's mode at ACI's error; below).
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -60,6 +63,12 @@
 //    times, hence the equal-time sample count, are noisy; --repeat N renders ACI and each mc
 //    try N times and keeps the fastest (the paper and arcs rows and the references once). ACI's fixed cost is shown per scene:
 //    the time of the same ACI render at 16 x 16 pixels.
+//  - With --paper-ladder: the paper's mode again at finer first levels and more dichotomy steps,
+//    in this order of cost, (grid, steps) = (2, 6), (4, 5), (4, 6), (8, 5), (8, 6), (16, 5),
+//    (16, 6), until its mean difference (below) is at most default ACI's, or a render takes more
+//    than 16 times ACI's time. The row "paper@aci-mean" is the first setting that reaches ACI's
+//    mean (its t/aci: what the paper's mode costs at the default's error), else the last tried;
+//    the scene's line lists every setting tried, and the summary how many scenes reached it.
 //  - Per row: samples, shadow rays per viewing ray (RenderStats::shadowRaysPerViewingRay: over
 //    the pixels where shadow rays were cast), seconds, then against the reference on the
 //    compared pixels, in 8-bit units (255 x linear difference, penumbra::compareImages): "mean"
@@ -154,6 +163,7 @@ struct Args {
     double lightScale = 1.0;  // each scene's light grown this many times (random_scenes.h)
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
     int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
+    bool paperLadder = false;  // the paper's mode at finer settings until it reaches ACI's mean
 };
 
 [[noreturn]] void usage(const std::string& message) {
@@ -162,7 +172,8 @@ struct Args {
                  "usage: bench_random [--seeds N] [--first-seed S] [--sizes 200,800] "
                  "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
                  "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images] "
-                 "[--adjudicate-samples N] [--lights rect|mixed] [--fog] [--light-scale S]\n");
+                 "[--adjudicate-samples N] [--lights rect|mixed] [--fog] [--light-scale S] "
+                 "[--paper-ladder]\n");
     std::exit(2);
 }
 
@@ -225,6 +236,7 @@ Args parseArgs(int argc, char** argv) {
         else if (s == "--save-images") a.saveImages = true;
         else if (s == "--lights") a.lights = parseLightShapes(next());
         else if (s == "--fog") a.fog = true;
+        else if (s == "--paper-ladder") a.paperLadder = true;
         else if (s == "--light-scale") {
             a.lightScale = std::atof(next().c_str());
             if (!(a.lightScale > 0.0)) usage("--light-scale must be > 0");
@@ -377,12 +389,14 @@ struct Row {
     std::string set;    // "random" or "gallery"
     std::string scene;  // "seed 3", "default"
     int size = 0;
-    std::string method;  // "reference", "aci", "aci-paper", "aci-arcs", "mc-sa@aci-time"
+    std::string method;  // "reference", "aci", "aci-paper", "aci-arcs", "mc-sa@aci-time",
+                         // "paper@aci-mean"
     int samples = 0;
     double raysPerVr = 0.0, seconds = 0.0, timeRatio = 0.0;
     Metrics m;
     double diffOverAci = 0.0;
     bool isReference = false;
+    bool reached = true;  // "paper@aci-mean": whether some setting reached ACI's mean
 };
 
 struct Comparison {
@@ -745,6 +759,37 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
             adj.overList.empty() ? "" : ": ", adj.overList.c_str());
     }
     const Metrics aciMetrics = measure(aci.color, cmp);
+    // The paper's mode at default ACI's mean difference: finer settings in order of cost.
+    RenderResult ladder;
+    bool ladderReached = false;
+    if (args.paperLadder) {
+        progress("aci paper at aci's mean");
+        constexpr double kLadderTimeCap = 16.0;  // stop once a render takes this many ACI times
+        const std::pair<int, int> settings[] = {{2, 6}, {4, 5}, {4, 6}, {8, 5},
+                                                {8, 6}, {16, 5}, {16, 6}};
+        std::string text;
+        for (const auto& [grid, steps] : settings) {
+            RenderSettings rs = squareSettings(Method::Aci, size, args.threads);
+            applyAciMode(rs.aci, AciMode::Paper);
+            rs.aci.grid = grid;
+            rs.aci.steps = steps;
+            ladder = render(scene, rs);
+            const Metrics m = measure(ladder.color, cmp);
+            const double ratio = ladder.stats.seconds / std::max(1e-9, aciSeconds);
+            char b[96];
+            std::snprintf(b, sizeof b, "%sgrid %d steps %d: %.2f s (t/aci %.2f), mean %.3f",
+                          text.empty() ? "" : "; ", grid, steps, ladder.stats.seconds, ratio,
+                          m.mean);
+            text += b;
+            if (m.mean <= aciMetrics.mean) {
+                ladderReached = true;
+                break;
+            }
+            if (ratio > kLadderTimeCap) break;
+        }
+        std::printf("# paper's mode at aci's mean %.3f: %s; %s\n", aciMetrics.mean,
+                    ladderReached ? "reached" : "NOT reached", text.c_str());
+    }
     auto makeRow = [&](const std::string& method, const RenderResult& r, int samples) {
         Row row;
         row.set = set;
@@ -778,6 +823,10 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
     std::vector<Row> rows{refRow, ref2Row, makeRow("aci", aci, 0), makeRow("aci-paper", paper, 0),
                           makeRow("aci-arcs", arcs, 0),
                           makeRow("mc-sa@aci-time", bestMc, bestSamples)};
+    if (args.paperLadder) {
+        rows.push_back(makeRow("paper@aci-mean", ladder, 0));
+        rows.back().reached = ladderReached;
+    }
     for (const Row& r : rows) {
         printRow(r);
         ctx.rows.push_back(r);
@@ -815,7 +864,7 @@ double geomean(const std::vector<double>& v) {
 void printSummary(const Context& ctx) {
     std::map<std::tuple<std::string, int, std::string>, std::vector<const Row*>> groups;
     const std::vector<std::string> order{"reference #2", "aci", "aci-paper", "aci-arcs",
-                                         "mc-sa@aci-time"};
+                                         "mc-sa@aci-time", "paper@aci-mean"};
     for (const Row& r : ctx.rows) {
         if (!r.isReference) groups[{r.set, r.size, r.method}].push_back(&r);
     }
@@ -882,6 +931,23 @@ void printSummary(const Context& ctx) {
                             at(worstMax, worstMax->m.max, "%.1f (%s)").c_str(),
                             at(worstMaxCertain, worstMaxCertain->m.maxCertain, "%.1f (%s)").c_str(),
                             over, overSil, overUncertain);
+                if (method == "paper@aci-mean") {
+                    std::vector<double> reachedTimes;
+                    const Row* fastest = nullptr;
+                    const Row* slowest = nullptr;
+                    for (const Row* r : rows) {
+                        if (!r->reached) continue;
+                        reachedTimes.push_back(r->timeRatio);
+                        if (!fastest || r->timeRatio < fastest->timeRatio) fastest = r;
+                        if (!slowest || r->timeRatio > slowest->timeRatio) slowest = r;
+                    }
+                    std::printf("%-8s %5d  %-15s reached aci's mean on %zu of %zu scenes; t/aci "
+                                "there: geometric mean %.2f, smallest %s, largest %s\n",
+                                set.c_str(), size, "", reachedTimes.size(), rows.size(),
+                                geomean(reachedTimes),
+                                at(fastest, fastest ? fastest->timeRatio : 0, "%.2f (%s)").c_str(),
+                                at(slowest, slowest ? slowest->timeRatio : 0, "%.2f (%s)").c_str());
+                }
             }
         }
     }
