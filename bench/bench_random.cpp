@@ -10,7 +10,7 @@
 //                [--gallery default,table1,fog]
 //                [--ref-samples 4096] [--ref-stride S] [--repeat N] [--out DIR] [--save-images]
 //                [--adjudicate-samples 1048576] [--lights rect|mixed] [--fog] [--light-scale S]
-//                [--paper-ladder]
+//                [--paper-ladder] [--aci-fixed-steps]
 //
 // Defaults: 10 seeds from 1, sizes 200 and 800, 2 threads, gallery at 200 only, reference 4096
 // rays, --out /tmp/penumbra_random (each seed's scene is written there as seed_S.json before it
@@ -26,7 +26,9 @@
 // each seed's scene (bench/random_scenes.h, "Volumes"; with either --lights). --light-scale S
 // grows each scene's light S times about its centre once the rest is drawn (radiance over S^2).
 // --paper-ladder also renders the paper's mode at finer settings until its mean difference is
-// at most default ACI's (the paper's mode at ACI's error; below).
+// at most default ACI's (the paper's mode at ACI's error; below). --aci-fixed-steps renders the
+// "aci" rows (and the 16 x 16 fixed cost) as `penumbra render --aci-fixed-steps` does: every
+// evaluation on the full lattice, no adaptive steps; every other row is unchanged.
 //
 // ---------------------------------------------------------------------------------------------
 // The generator: bench/random_scenes.h (seed s gives the same scene on any platform).
@@ -164,6 +166,7 @@ struct Args {
     int repeat = 1;  // timed renders (ACI, each mc try) run this many times, the fastest kept
     int adjudicateSamples = 1 << 20;  // per-pixel references for ACI's pixels over 6 units; 0: none
     bool paperLadder = false;  // the paper's mode at finer settings until it reaches ACI's mean
+    bool aciFixedSteps = false;  // the "aci" rows without adaptive steps
 };
 
 [[noreturn]] void usage(const std::string& message) {
@@ -173,7 +176,7 @@ struct Args {
                  "[--threads N] [--gallery-size 200[,800]|0] [--gallery-dir DIR] [--gallery a,b] "
                  "[--ref-samples N] [--ref-stride S] [--repeat N] [--out DIR] [--save-images] "
                  "[--adjudicate-samples N] [--lights rect|mixed] [--fog] [--light-scale S] "
-                 "[--paper-ladder]\n");
+                 "[--paper-ladder] [--aci-fixed-steps]\n");
     std::exit(2);
 }
 
@@ -237,6 +240,7 @@ Args parseArgs(int argc, char** argv) {
         else if (s == "--lights") a.lights = parseLightShapes(next());
         else if (s == "--fog") a.fog = true;
         else if (s == "--paper-ladder") a.paperLadder = true;
+        else if (s == "--aci-fixed-steps") a.aciFixedSteps = true;
         else if (s == "--light-scale") {
             a.lightScale = std::atof(next().c_str());
             if (!(a.lightScale > 0.0)) usage("--light-scale must be > 0");
@@ -622,8 +626,12 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
 
     // ACI at default settings: its mask and the reference's are the compared pixels.
     progress("aci");
-    const RenderResult aci = timedRender(scene, squareSettings(Method::Aci, size, args.threads),
-                                         args.repeat);
+    auto defaultAci = [&](int pixels) {
+        RenderSettings rs = squareSettings(Method::Aci, pixels, args.threads);
+        if (args.aciFixedSteps) rs.adaptiveSteps = false;
+        return rs;
+    };
+    const RenderResult aci = timedRender(scene, defaultAci(size), args.repeat);
     cmp.mask = ref.aovs.mask;
     {
         const Image aciMask = sample(aci.aovs.mask, smp);
@@ -650,7 +658,7 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
     // ACI's fixed cost (mostly building the level sets' far-field distance companions, which
     // every render of the tangent mode does): the same render at 16 x 16 pixels.
     const double aciSetup =
-        render(scene, squareSettings(Method::Aci, 16, args.threads)).stats.seconds;
+        render(scene, defaultAci(16)).stats.seconds;
 
     // mc-solid-angle at ACI's time.
     progress("mc-solid-angle at aci's time");
@@ -998,6 +1006,8 @@ int main(int argc, char** argv) {
             "mc-sa@aci-time: mc-solid-angle with its samples set so that its wall time matches\n"
             "  default ACI's in the same run (t/aci is the achieved ratio).\n",
             strideText.c_str());
+        if (args.aciFixedSteps)
+            std::printf("The \"aci\" rows: --aci-fixed-steps (no adaptive steps).\n");
         Context ctx{args, {}, {}};
         std::printf("\n");
         printTableHeader();
