@@ -720,12 +720,13 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
 
     // The paper's estimator and the arcs mode.
     progress("aci paper, arcs");
-    RenderSettings paperSettings = squareSettings(Method::Aci, size, args.threads);
-    applyAciMode(paperSettings.aci, AciMode::Paper);
-    const RenderResult paper = render(scene, paperSettings);
-    RenderSettings arcsSettings = squareSettings(Method::Aci, size, args.threads);
-    applyAciMode(arcsSettings.aci, AciMode::Arcs);
-    const RenderResult arcs = render(scene, arcsSettings);
+    auto modeSettings = [&](AciMode mode) {
+        RenderSettings rs = squareSettings(Method::Aci, size, args.threads);
+        applyAciMode(rs.aci, mode);
+        return rs;
+    };
+    const RenderResult paper = render(scene, modeSettings(AciMode::Paper));
+    const RenderResult arcs = render(scene, modeSettings(AciMode::Arcs));
 
     if (args.saveImages) {
         const std::string stem = args.out + "/" + tag + "_" + std::to_string(size);
@@ -777,8 +778,7 @@ void runSceneAtSize(Context& ctx, const Scene& scene, const std::string& set,
                                                 {8, 6}, {16, 5}, {16, 6}};
         std::string text;
         for (const auto& [grid, steps] : settings) {
-            RenderSettings rs = squareSettings(Method::Aci, size, args.threads);
-            applyAciMode(rs.aci, AciMode::Paper);
+            RenderSettings rs = modeSettings(AciMode::Paper);
             rs.aci.grid = grid;
             rs.aci.steps = steps;
             ladder = render(scene, rs);
