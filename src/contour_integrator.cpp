@@ -451,7 +451,13 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         footprintsBuilt = true;
         const double unit = 0.5 * (glm::length(light.edgeU) / (grid.a << (n + 1)) +
                                    glm::length(light.edgeV) / (grid.b << (n + 1)));
-        if (sc.mFootprints.narrowestWidth(query.occluder()) >= kAdaptiveWidth * unit) coarser = 1;
+        const double wide = kAdaptiveWidth * unit;
+        // ... and no footprint cuts a weighty sliver from a light whose border runs between
+        // lattice points (a disc's circle, a polygon's cutting edge).
+        if (sc.mFootprints.narrowestWidth(query.occluder()) >= wide) {
+            const double sliver = sc.mFootprints.thinSliver(r, wide);
+            if (!(sliver > kSliverShare * unoccludedFormFactor(light, r))) coarser = 1;
+        }
         n -= coarser;
     }
     // Steps more where a lattice cell's form factor is large and an obstacle's footprint only a

@@ -10,7 +10,161 @@ namespace {
 
 constexpr double kMargin = 1e-9;  // in (u, v) and radians: far above rounding, far below a lattice unit
 
+// Twice the signed area of a polygon (positive counterclockwise).
+double twiceArea(const std::vector<Vec2>& p) {
+    double a = 0.0;
+    for (size_t i = 0; i < p.size(); ++i) {
+        const Vec2& q = p[i];
+        const Vec2& r = p[(i + 1) % p.size()];
+        a += q.x * r.y - q.y * r.x;
+    }
+    return a;
+}
+
+void makeCounterclockwise(std::vector<Vec2>& p) {
+    if (twiceArea(p) < 0.0) std::reverse(p.begin(), p.end());
+}
+
+// Edge i's unit outward normal of a counterclockwise polygon; zero for an edge of no length.
+Vec2 outward(const std::vector<Vec2>& p, size_t i) {
+    const Vec2 e = p[(i + 1) % p.size()] - p[i];
+    const double len = glm::length(e);
+    return len > 0.0 ? Vec2(e.y, -e.x) / len : Vec2(0.0);
+}
+
+// The part of `poly` on the inner side of the line through `at` with outward normal n.
+std::vector<Vec2> clipHalfPlane(const std::vector<Vec2>& poly, const Vec2& at, const Vec2& n) {
+    std::vector<Vec2> kept;
+    const auto past = [&](const Vec2& q) { return glm::dot(q - at, n); };
+    for (size_t k = 0; k < poly.size(); ++k) {
+        const Vec2& a = poly[k];
+        const Vec2& b = poly[(k + 1) % poly.size()];
+        const double da = past(a), db = past(b);
+        if (da <= 0.0) kept.push_back(a);
+        if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) kept.push_back(a + (da / (da - db)) * (b - a));
+    }
+    return kept;
+}
+
+// The part of `poly` inside the convex counterclockwise `clip` (Sutherland-Hodgman).
+std::vector<Vec2> clipConvex(std::vector<Vec2> poly, const std::vector<Vec2>& clip) {
+    for (size_t i = 0; i < clip.size() && poly.size() >= 3; ++i) {
+        const Vec2 n = outward(clip, i);
+        if (n != Vec2(0.0)) poly = clipHalfPlane(poly, clip[i], n);
+    }
+    return poly;
+}
+
+// A convex counterclockwise polygon's width: the smallest, over its edges, of its reach
+// inward from that edge.
+double convexWidth(const std::vector<Vec2>& p) {
+    double width = std::numeric_limits<double>::infinity();
+    for (size_t e = 0; e < p.size(); ++e) {
+        const Vec2 n = outward(p, e);
+        if (n == Vec2(0.0)) continue;
+        double reach = 0.0;
+        for (const Vec2& q : p) reach = std::max(reach, glm::dot(p[e] - q, n));
+        width = std::min(width, reach);
+    }
+    return width;
+}
+
+constexpr int kRoundSides = 48;  // sides of the polygons inscribed in circles and cones
+
 }  // namespace
+
+std::vector<Vec2> LightFootprints::emittingPolygon() const {
+    const RectLight& l = *mLight;
+    auto plane = [&](const Vec3& q) {
+        return Vec2(glm::dot(q - l.corner, mPlaneX), glm::dot(q - l.corner, mPlaneY));
+    };
+    std::vector<Vec2> frame;
+    for (const Vec3& q : {l.corner, l.corner + l.edgeU, l.corner + l.edgeU + l.edgeV, l.corner + l.edgeV})
+        frame.push_back(plane(q));
+    makeCounterclockwise(frame);
+    std::vector<Vec2> shape;
+    if (l.shape == LightShape::Polygon) {
+        for (const Vec3& q : l.vertices) shape.push_back(plane(q));
+    } else if (l.shape == LightShape::Disc) {
+        const Vec3 e1 = glm::normalize(l.edgeU), e2 = glm::cross(l.normal(), e1);
+        for (int k = 0; k < kRoundSides; ++k) {
+            const double a = 2.0 * kPi * k / kRoundSides;
+            shape.push_back(plane(l.center + l.radius * (std::cos(a) * e1 + std::sin(a) * e2)));
+        }
+    } else {
+        return frame;
+    }
+    makeCounterclockwise(shape);
+    return clipConvex(shape, frame);
+}
+
+std::vector<Vec2> LightFootprints::conePolygon(const Footprint& f) const {
+    std::vector<Vec2> out;
+    if (!(f.spread < 0.5 * kPi)) return out;
+    const Vec3 n = mLight->normal();
+    const Vec3 helper = std::abs(f.axis.x) < 0.9 ? Vec3(1.0, 0.0, 0.0) : Vec3(0.0, 1.0, 0.0);
+    const Vec3 e1 = glm::normalize(glm::cross(f.axis, helper)), e2 = glm::cross(f.axis, e1);
+    for (int k = 0; k < kRoundSides; ++k) {
+        const double a = 2.0 * kPi * k / kRoundSides;
+        const Vec3 d = f.cosSpread * f.axis + f.sinSpread * (std::cos(a) * e1 + std::sin(a) * e2);
+        const double along = glm::dot(d, n);
+        // The ray meets the light's plane ahead of the origin (mToLight: signed distance).
+        if (!(along * mToLight > 0.0)) return {};
+        const Vec3 q = mOrigin + (mToLight / along) * d - mLight->corner;
+        out.emplace_back(glm::dot(q, mPlaneX), glm::dot(q, mPlaneY));
+    }
+    makeCounterclockwise(out);
+    return out;
+}
+
+double LightFootprints::thinSliver(const Receiver& r, double width) const {
+    double heaviest = 0.0;
+    // A rectangle's border is lattice lines, whose points (traced or crossed by the contour
+    // there) see a sliver along it; a circle or a polygon's cutting edge runs between lattice
+    // points, and a sliver beside it can fall between the lattice and the border.
+    if (!mBounded || mFootprints.empty() || mLight->shape == LightShape::Rect) return heaviest;
+    const std::vector<Vec2> light = emittingPolygon();
+    if (light.size() < 3) return heaviest;
+    const double margin = 1e-9 * std::max(glm::length(mLight->edgeU), glm::length(mLight->edgeV));
+    // A sliver's form factor, its corners taken back to world space.
+    std::vector<Vec3> world;
+    auto weigh = [&](const std::vector<Vec2>& sliver) {
+        world.clear();
+        for (const Vec2& q : sliver) world.push_back(mLight->corner + q.x * mPlaneX + q.y * mPlaneY);
+        const std::vector<Vec3> above = clipToHorizon(world, r);
+        if (above.size() >= 3) heaviest = std::max(heaviest, std::abs(polygonFormFactor(above, r)));
+    };
+    for (const Footprint& f : mFootprints) {
+        if (f.u1 < 0.0 || f.u0 > 1.0 || f.v1 < 0.0 || f.v0 > 1.0 || f.n < 3) continue;
+        std::vector<Vec2> print;
+        for (int a = 0; a < f.n; ++a) print.emplace_back(f.x[a], f.y[a]);
+        makeCounterclockwise(print);
+        const std::vector<Vec2> cone = conePolygon(f);
+        if (cone.size() >= 3) print = clipConvex(print, cone);
+        if (print.size() < 3) continue;
+        const std::vector<Vec2> overlap = clipConvex(print, light);
+        if (overlap.size() < 3 || !(std::abs(twiceArea(overlap)) > margin * margin)) continue;
+        // A sliver of shadow: the overlap is thin.
+        if (convexWidth(overlap) < width) weigh(overlap);
+        // A sliver of light: in front of one of the footprint's edges (past its line, between
+        // the normals at its ends) the light reaches only a little.
+        for (size_t e = 0; e < print.size(); ++e) {
+            const Vec2 n = outward(print, e);
+            if (n == Vec2(0.0)) continue;
+            const Vec2& from = print[e];
+            const Vec2& to = print[(e + 1) % print.size()];
+            const Vec2 along = glm::normalize(to - from);
+            std::vector<Vec2> front = clipHalfPlane(light, from, -n);
+            front = clipHalfPlane(front, from, -along);
+            front = clipHalfPlane(front, to, along);
+            if (front.size() < 3) continue;
+            double depth = 0.0;
+            for (const Vec2& q : front) depth = std::max(depth, glm::dot(q - from, n));
+            if (depth > margin && depth < width) weigh(front);
+        }
+    }
+    return heaviest;
+}
 
 int LightFootprints::hull(const double u[8], const double v[8], double hu[8], double hv[8]) {
     // Andrew's monotone chain.

@@ -47,6 +47,15 @@ public:
     /// is unbounded (the origin on or beside it) is a level set too thin for kernel balls: a
     /// level set as thin anywhere as the bounded ones' rule assumes.
     double narrowestWidth(const Occluder& occ) const;
+    /// The heaviest sliver a footprint cuts from the light: over the bounded footprints (their
+    /// hull and their solid sphere's cone) that meet what the light emits, their overlap with
+    /// it where that is narrower than `width` (world units, in the light's plane), and the
+    /// emitting area past one of their edges where that reaches less than `width` past it; the
+    /// largest form factor at `r` of these (0 when there is none). A footprint wide in itself
+    /// may leave such a sliver of shadow or light at the light's border (a box's shadow
+    /// reaching 2 units of 256 into a disc light along its rim), which a coarser lattice
+    /// misses. Like narrowestWidth(), a guide for choosing a lattice, not a bound.
+    double thinSliver(const Receiver& r, double width) const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
     /// (d; its length and direction).
@@ -109,6 +118,13 @@ private:
         double nu[8], nv[8];  // its edges' unit outward normals
         int n = 0;
     };
+    // What the light emits (its frame cut by its polygon or its circle) as a convex polygon in
+    // the light plane's frame: a circle by an inscribed polygon.
+    std::vector<Vec2> emittingPolygon() const;
+    // The footprint's cone (its solid sphere's, from the origin) where it meets the light's
+    // plane, by an inscribed polygon in the light plane's frame; empty when some of the cone's
+    // rays miss the plane (the footprint is then the hull's).
+    std::vector<Vec2> conePolygon(const Footprint& f) const;
     // The width on the light's plane of a cone from the origin (its unit axis and half-angle),
     // or of a ball's (infinite when the origin is inside it), as narrowestWidth() measures it.
     double chordAcross(const Vec3& axis, double spread) const;

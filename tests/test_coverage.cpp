@@ -1546,3 +1546,35 @@ TEST_CASE("tangent mode: squares below one whose threshold no checked piece set 
     CHECK(std::abs(m.aci.formFactor - m.ref) <= 0.001 * m.full);
     CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound);
 }
+
+TEST_CASE("adaptive steps keep the lattice where a wide footprint cuts a sliver from a disc's rim "
+          "(random scene 941)",
+          "[aci][coverage]") {
+    // tests/scenes/random_seed941.json is bench_random --lights mixed's scene for seed 941: a
+    // disc light 2.7 across, a box 0.7 below it. From ground point (0.3826, -1.0010) the box's
+    // footprint on the disc is wide, but it reaches only about two units of the lattice into
+    // the disc along its rim. On the coarser lattice (renders' adaptive steps, n = 4 for the
+    // asked 5) that sliver fell between the lattice points and the circle: three rays, the disc
+    // taken as wholly lit, 0.171740 against 0.171291 (0.26% of the unoccluded form factor too
+    // bright; all over the render at 64 x 64, where the image's mean difference from a 65,536-ray
+    // reference was 2.6 times the finer lattice's). The evaluation now keeps the lattice there
+    // (LightFootprints::thinSliver): 0.171356. Reference: the same estimator at n = 6 on the
+    // finer lattice (a million rays: 0.171291).
+    SceneUnderTest t("random_seed941.json");
+    const RectLight& light = t.scene.lights.at(0);
+    const Receiver r{Vec3(0.382620155, -1.000983518, 0.0), kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
+    s.adaptiveSteps = true;
+    AciSettings fine = s;
+    fine.steps = 6;
+    fine.adaptiveSteps = false;
+    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
+    const double ref = ContourIntegrator(fine).evaluate(r, light, t.q).formFactor;
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(aci.formFactor, aci.errorBound, ref, full, aci.counts.coarserEvaluations);
+    CHECK(aci.counts.coarserEvaluations == 0);
+    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
+    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+}
