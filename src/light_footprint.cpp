@@ -1,6 +1,7 @@
 #include "light_footprint.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -71,6 +72,19 @@ double convexWidth(const std::vector<Vec2>& p) {
 
 constexpr int kRoundSides = 48;  // sides of the polygons inscribed in circles and cones
 
+// The corners of kRoundSides-gon inscribed in the unit circle (cosine, sine), found once.
+const std::array<Vec2, kRoundSides>& unitPolygon() {
+    static const std::array<Vec2, kRoundSides> corners = [] {
+        std::array<Vec2, kRoundSides> c;
+        for (int k = 0; k < kRoundSides; ++k) {
+            const double a = 2.0 * kPi * k / kRoundSides;
+            c[size_t(k)] = Vec2(std::cos(a), std::sin(a));
+        }
+        return c;
+    }();
+    return corners;
+}
+
 }  // namespace
 
 std::vector<Vec2> LightFootprints::emittingPolygon() const {
@@ -87,10 +101,7 @@ std::vector<Vec2> LightFootprints::emittingPolygon() const {
         for (const Vec3& q : l.vertices) shape.push_back(plane(q));
     } else if (l.shape == LightShape::Disc) {
         const Vec3 e1 = glm::normalize(l.edgeU), e2 = glm::cross(l.normal(), e1);
-        for (int k = 0; k < kRoundSides; ++k) {
-            const double a = 2.0 * kPi * k / kRoundSides;
-            shape.push_back(plane(l.center + l.radius * (std::cos(a) * e1 + std::sin(a) * e2)));
-        }
+        for (const Vec2& c : unitPolygon()) shape.push_back(plane(l.center + l.radius * (c.x * e1 + c.y * e2)));
     } else {
         return frame;
     }
@@ -104,9 +115,8 @@ std::vector<Vec2> LightFootprints::conePolygon(const Footprint& f) const {
     const Vec3 n = mLight->normal();
     const Vec3 helper = std::abs(f.axis.x) < 0.9 ? Vec3(1.0, 0.0, 0.0) : Vec3(0.0, 1.0, 0.0);
     const Vec3 e1 = glm::normalize(glm::cross(f.axis, helper)), e2 = glm::cross(f.axis, e1);
-    for (int k = 0; k < kRoundSides; ++k) {
-        const double a = 2.0 * kPi * k / kRoundSides;
-        const Vec3 d = f.cosSpread * f.axis + f.sinSpread * (std::cos(a) * e1 + std::sin(a) * e2);
+    for (const Vec2& c : unitPolygon()) {
+        const Vec3 d = f.cosSpread * f.axis + f.sinSpread * (c.x * e1 + c.y * e2);
         const double along = glm::dot(d, n);
         // The ray meets the light's plane ahead of the origin (mToLight: signed distance).
         if (!(along * mToLight > 0.0)) return {};
