@@ -141,6 +141,11 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     lightNormal = l.normal();
     cuts = cuttingEdges(l);
     shaped = l.shape != LightShape::Rect;
+    if (l.shape == LightShape::Polygon && !frameHoldsCorners(l))
+        for (const Vec3& corner : l.vertices) {
+            const Vec2 uv = l.coordinates(corner);
+            polyCorners.emplace_back(uv.x * Na, uv.y * Nb);
+        }
     horizonFree = isDiscPiece(l);
     const Vec3 unitU = l.edgeU / double(Na), unitV = l.edgeV / double(Nb);
     unit = 0.5 * (glm::length(unitU) + glm::length(unitV));
@@ -416,7 +421,7 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
             }
             std::rotate(part.begin(), part.begin() + static_cast<long>((k + m - 1) % m), part.end());
         }
-        if (!parallelogram && !mFanPiece && !(part == light.vertices && frameHoldsCorners(light))) {
+        if (!parallelogram && !mFanPiece && part != light.vertices) {
             std::vector<RectLight> fan;
             for (size_t i = 1; i + 1 < part.size(); ++i) {
                 try {

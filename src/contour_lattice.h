@@ -284,6 +284,9 @@ struct ContourIntegrator::Lattice {
     std::vector<LightEdge> cuts;
     bool shaped = false;  // a polygon or disc light: contour pieces along its border are exact
     bool horizonFree = false;  // a disc piece: wholly above the horizon (above() is infinite)
+    // A polygon light whose corners are not its frame's, integrated on that frame: its corners
+    // in lattice coordinates (polygonPoke()); empty otherwise.
+    std::vector<Vec2> polyCorners;
     bool mScanned = false;  // coverage: this pass's leaves are scanned for uncovered cells
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
@@ -403,6 +406,7 @@ struct ContourIntegrator::Lattice {
     bool untrustedTangent(LatticePoint q) const;
     bool nearOwnStart(LatticePoint q) const;
     bool nearReceiver(int x0, int y0, int s) const;
+    bool polygonPoke(int x0, int y0, int s, const LatticePoint c[4], int nVisible) const;
     // The section 3.2 strip threshold's factor: with coverage a sixteenth of the paper's, and on
     // the coarser lattice (adaptive steps) half that, so that its strips, twice as wide as the
     // finer lattice's, ask for the finer lattice's accuracy (the bunny's ground: 6% less error

@@ -60,6 +60,19 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
     const int nVisible = v[0] + v[1] + v[2] + v[3];
     const bool onBorder[4] = {y0 == 0, x0 + s == Na, y0 + s == Nb, x0 == 0};
 
+    // A polygon light on its own frame: a square that the polygon enters (a corner of it, or
+    // an edge) while none of the square's corners emits is split down to the lattice; what
+    // emits there between lattice points is at most that square, counted in the bound.
+    if (!polyCorners.empty() && polygonPoke(x0, y0, s, c, nVisible)) {
+        if (k > 0) {
+            ++counts.squaresRefined;
+            return split(x0, y0, k, thr, depth, v, onBorder);
+        }
+        const Vec3 p0 = pointOf(c[0]);
+        const Vec3 area = glm::cross(pointOf(c[1]) - p0, pointOf(c[3]) - p0);
+        bound += glm::length(area) * formFactorDensity(rec, lightNormal, 0.5 * (p0 + pointOf(c[2])));
+    }
+
     if (nVisible == 0 || nVisible == 4) {
         // With coverage: a coverage sample inside that disagrees splits the square (a
         // shadow or window touching no corner).
@@ -170,6 +183,42 @@ bool ContourIntegrator::Lattice::nearReceiver(int x0, int y0, int s) const {
     const double height = std::abs(glm::dot(rec.point - p0, lightNormal));
     const double dist = std::max(height, glm::length(0.5 * (p0 + p2) - rec.point) - halfDiag);
     return side > kNearReceiver * dist;
+}
+
+// Whether the polygon (polyCorners) meets the square (lower-left corner x0, y0, side s;
+// corners c) while none of the square's corners emits (nVisible: how many are visible; a
+// visible one emits): the square holds one of its corners, or one of its edges crosses it.
+// Where a square corner emits, marching squares finds the border's crossings, and the walk
+// between them (emitBorder) turns at the polygon's corners, in the square or beside it.
+bool ContourIntegrator::Lattice::polygonPoke(int x0, int y0, int s, const LatticePoint c[4],
+                                            int nVisible) const {
+    if (nVisible > 0) return false;
+    for (int i = 0; i < 4; ++i)
+        if (emits(pointOf(c[i]))) return false;
+    const double lo[2] = {double(x0), double(y0)}, hi[2] = {double(x0 + s), double(y0 + s)};
+    for (const Vec2& q : polyCorners)
+        if (q.x >= lo[0] && q.x <= hi[0] && q.y >= lo[1] && q.y <= hi[1]) return true;
+    // An edge of the polygon through the square (Liang-Barsky).
+    for (size_t e = 0; e < polyCorners.size(); ++e) {
+        const Vec2& a = polyCorners[e];
+        const Vec2 d = polyCorners[(e + 1) % polyCorners.size()] - a;
+        double t0 = 0.0, t1 = 1.0;
+        bool misses = false;
+        for (int axis = 0; axis < 2 && !misses; ++axis) {
+            const double from = axis == 0 ? a.x : a.y, step = axis == 0 ? d.x : d.y;
+            if (step == 0.0) {
+                misses = from < lo[axis] || from > hi[axis];
+                continue;
+            }
+            double ta = (lo[axis] - from) / step, tb = (hi[axis] - from) / step;
+            if (ta > tb) std::swap(ta, tb);
+            t0 = std::max(t0, ta);
+            t1 = std::min(t1, tb);
+            misses = t0 > t1;
+        }
+        if (!misses) return true;
+    }
+    return false;
 }
 
 // Marching squares (section 3.1): the contour pieces of a square with mixed corners, each from

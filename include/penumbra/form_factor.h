@@ -64,8 +64,8 @@ struct RectLight {
 
 /// A convex polygon light. Its frame: for a triangle, the parallelogram on its first two edges;
 /// for a parallelogram, itself; otherwise the smallest rectangle along one of its edges that
-/// holds it (the contour integrator then integrates the fan of triangles from vertex 0, each in
-/// its own parallelogram). Throws std::invalid_argument naming the offending vertex (by index) when there are fewer
+/// holds it (the contour integrator integrates it on that frame, or, where the receiver's horizon
+/// cuts it, as the fan of triangles of its part above, each in its own parallelogram). Throws std::invalid_argument naming the offending vertex (by index) when there are fewer
 /// than 3 vertices, they are not on one plane (to 1e-6 of the polygon's size), or the polygon is
 /// not convex and counterclockwise about the normal of its first corner that turns.
 RectLight polygonLight(const std::vector<Vec3>& vertices);
