@@ -141,11 +141,16 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     lightNormal = l.normal();
     cuts = cuttingEdges(l);
     shaped = l.shape != LightShape::Rect;
-    if (l.shape == LightShape::Polygon && !frameHoldsCorners(l))
+    if (l.shape == LightShape::Polygon && !frameHoldsCorners(l)) {
         for (const Vec3& corner : l.vertices) {
             const Vec2 uv = l.coordinates(corner);
             polyCorners.emplace_back(uv.x * Na, uv.y * Nb);
         }
+        const Vec3 u = glm::normalize(l.edgeU), v = glm::normalize(l.edgeV);
+        const Vec3 up = glm::normalize(l.edgeV - glm::dot(l.edgeV, u) * u);     // across the bottom
+        const Vec3 right = glm::normalize(l.edgeU - glm::dot(l.edgeU, v) * v);  // across the left
+        frameSides = {{l.corner, up}, {l.corner + l.edgeU, -right}, {l.corner + l.edgeV, -up}, {l.corner, right}};
+    }
     horizonFree = isDiscPiece(l);
     const Vec3 unitU = l.edgeU / double(Na), unitV = l.edgeV / double(Nb);
     unit = 0.5 * (glm::length(unitU) + glm::length(unitV));
@@ -398,11 +403,11 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         if (discPiecesAboveHorizon(light, r, pieces)) return evaluatePieces(r, pieces, query);
     }
     if (light.shape == LightShape::Polygon) {
-        // Emitting area between lattice corners that all lie outside it would go unseen: a
-        // polygon whose corners are not its frame's, or a triangle whose corners the horizon
-        // cuts off, is integrated as the fan of triangles of its part above the horizon, each
-        // in its own parallelogram (a parallelogram needs none: the horizon meets it on its
-        // frame's border, like a rectangle's).
+        // A polygon whose corners the horizon cuts off (the meeting points are corners of
+        // what emits, not lattice points) is integrated as the fan of triangles of its part
+        // above the horizon, each in its own parallelogram (a parallelogram needs none: the
+        // horizon meets it on its frame's border, like a rectangle's). One wholly above the
+        // horizon is integrated on its own frame (Lattice::polygonPoke, emitBorder).
         const bool parallelogram = light.vertices.size() == 4 && frameHoldsCorners(light);
         std::vector<Vec3> part = parallelogram || mFanPiece ? light.vertices : clipToHorizon(light.vertices, r);
         if (part != light.vertices && part.size() >= 3) {

@@ -203,6 +203,9 @@ struct Vertex {
 
 constexpr int kClipHorizon = 1000;  // Vertex::clip: the receiver's horizon line
 constexpr int kClipDisc = 1001;     // Vertex::clip: a disc light's circle
+// In a walk along the border (emitBorder) only: the frame's four sides, kClipFrame + side
+// (bottom, right, top, left), along which a polygon on its own frame may run between cuts.
+constexpr int kClipFrame = 2000;
 
 }  // namespace aci
 
@@ -287,6 +290,9 @@ struct ContourIntegrator::Lattice {
     // A polygon light whose corners are not its frame's, integrated on that frame: its corners
     // in lattice coordinates (polygonPoke()); empty otherwise.
     std::vector<Vec2> polyCorners;
+    // Its frame's sides as lines (origin, inward normal), bottom, right, top, left: the walk
+    // along the border follows them where the polygon's edges lie on them.
+    std::vector<LightEdge> frameSides;
     bool mScanned = false;  // coverage: this pass's leaves are scanned for uncovered cells
     bool certifyNext = false;  // coverage: certify the next traced ray although not first-level
     int passLevel = 0;         // the restart level of the current pass
