@@ -68,9 +68,13 @@ bool ContourIntegrator::Lattice::square(int x0, int y0, int k, double thr, int d
             ++counts.squaresRefined;
             return split(x0, y0, k, thr, depth, v, onBorder);
         }
+        // The square's area times the largest density at its corners and centre (the
+        // density varies by little across one square away from the receiver).
         const Vec3 p0 = pointOf(c[0]);
         const Vec3 area = glm::cross(pointOf(c[1]) - p0, pointOf(c[3]) - p0);
-        bound += glm::length(area) * formFactorDensity(rec, lightNormal, 0.5 * (p0 + pointOf(c[2])));
+        double density = formFactorDensity(rec, lightNormal, 0.5 * (p0 + pointOf(c[2])));
+        for (int i = 0; i < 4; ++i) density = std::max(density, formFactorDensity(rec, lightNormal, pointOf(c[i])));
+        bound += glm::length(area) * density;
     }
 
     if (nVisible == 0 || nVisible == 4) {

@@ -132,7 +132,11 @@ double LightFootprints::thinSliver(const Receiver& r, double width) const {
     // A rectangle's border is lattice lines, whose points (traced or crossed by the contour
     // there) see a sliver along it; a circle or a polygon's cutting edge runs between lattice
     // points, and a sliver beside it can fall between the lattice and the border.
-    if (!mBounded || mFootprints.empty() || mLight->shape == LightShape::Rect) return heaviest;
+    // A parallelogram light is its own frame.
+    const bool parallelogram = mLight->shape == LightShape::Polygon && mLight->vertices.size() == 4 &&
+                               frameHoldsCorners(*mLight);
+    if (!mBounded || mFootprints.empty() || mLight->shape == LightShape::Rect || parallelogram)
+        return heaviest;
     const std::vector<Vec2> light = emittingPolygon();
     if (light.size() < 3) return heaviest;
     const double margin = 1e-9 * std::max(glm::length(mLight->edgeU), glm::length(mLight->edgeV));

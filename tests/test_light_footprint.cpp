@@ -272,7 +272,8 @@ TEST_CASE("light footprints: a sliver of shadow or light beside a disc's rim, we
     // coarser lattice can miss either (renders' adaptive steps; LightFootprints::thinSliver):
     // both are found when asked for slivers narrower than 0.2, with the strip's form factor
     // (against a brute-force estimate), neither when asked for 0.03, and never on a square light
-    // of the disc's frame, whose border is lattice lines.
+    // of the disc's frame (a rectangle, or a polygon of its corners), whose border is lattice
+    // lines.
     const RectLight disc = discLight(Vec3(0.0, 0.0, 2.0), Vec3(0.0, 0.0, -1.0), 1.0);
     const Receiver r{Vec3(0.0), Vec3(0.0, 0.0, 1.0)};
     RectLight square = disc;
@@ -305,6 +306,10 @@ TEST_CASE("light footprints: a sliver of shadow or light beside a disc's rim, we
         CHECK(sliver == Approx(strip).epsilon(0.08));
         CHECK(fp.thinSliver(r, 0.03) == 0.0);
         REQUIRE(fp.build(occ, nullptr, r.point, square));
+        CHECK(fp.thinSliver(r, 0.2) == 0.0);
+        // Nor on the same square given as a polygon (a parallelogram is its own frame).
+        const RectLight squarePolygon = polygonLight(square.polygon());
+        REQUIRE(fp.build(occ, nullptr, r.point, squarePolygon));
         CHECK(fp.thinSliver(r, 0.2) == 0.0);
     }
 }
