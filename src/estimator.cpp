@@ -11,6 +11,8 @@
 #include "penumbra/error.h"
 #include "penumbra/monte_carlo.h"
 
+#include "convex_clip.h"
+
 namespace penumbra {
 
 const char* methodName(Method method) {
@@ -113,24 +115,10 @@ Footprint footprintOf(const Box3& media, const Vec3& origin, const RectLight& li
     return {u0 - pad, v0 - pad, u1 + pad, v1 + pad};
 }
 
-// One Sutherland-Hodgman step: keeps the part of the convex polygon `poly` where value(p) >= 0.
-template <class P, class Value>
-void clipConvex(std::vector<P>& poly, const Value& value) {
-    std::vector<P> out;
-    for (size_t i = 0; i < poly.size(); ++i) {
-        const P& a = poly[i];
-        const P& b = poly[(i + 1) % poly.size()];
-        const double fa = value(a), fb = value(b);
-        if (fa >= 0.0) out.push_back(a);
-        if ((fa >= 0.0) != (fb >= 0.0)) out.push_back(a + (fa / (fa - fb)) * (b - a));
-    }
-    poly.swap(out);
-}
-
 // The bounding rectangle of the part of the convex polygon `area` ((u, v) points) inside the
 // footprint; none when they do not overlap. `cut`: whether the area's border cuts the footprint.
 std::optional<Footprint> clipFootprint(const Footprint& f, std::vector<Vec2> area, bool& cut) {
-    auto clip = [&](auto value) { clipConvex(area, value); };
+    auto clip = [&](auto value) { keepNonNegative(area, value); };
     clip([&](const Vec2& p) { return p.x - f.u0; });
     clip([&](const Vec2& p) { return f.u1 - p.x; });
     clip([&](const Vec2& p) { return p.y - f.v0; });
@@ -155,7 +143,7 @@ std::optional<Footprint> clipFootprint(const Footprint& f, std::vector<Vec2> are
 // cell), which polygonLight() refuses.
 std::optional<RectLight> polygonPart(const RectLight& light, double u0, double v0, double u1, double v1) {
     std::vector<Vec3> poly = light.vertices;
-    auto clip = [&](auto value) { clipConvex(poly, value); };
+    auto clip = [&](auto value) { keepNonNegative(poly, value); };
     clip([&](const Vec3& p) { return light.coordinates(p).x - u0; });
     clip([&](const Vec3& p) { return u1 - light.coordinates(p).x; });
     clip([&](const Vec3& p) { return light.coordinates(p).y - v0; });

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 
+#include "convex_clip.h"
+
 namespace penumbra {
 
 namespace {
@@ -34,17 +36,9 @@ Vec2 outward(const std::vector<Vec2>& p, size_t i) {
 }
 
 // The part of `poly` on the inner side of the line through `at` with outward normal n.
-std::vector<Vec2> clipHalfPlane(const std::vector<Vec2>& poly, const Vec2& at, const Vec2& n) {
-    std::vector<Vec2> kept;
-    const auto past = [&](const Vec2& q) { return glm::dot(q - at, n); };
-    for (size_t k = 0; k < poly.size(); ++k) {
-        const Vec2& a = poly[k];
-        const Vec2& b = poly[(k + 1) % poly.size()];
-        const double da = past(a), db = past(b);
-        if (da <= 0.0) kept.push_back(a);
-        if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) kept.push_back(a + (da / (da - db)) * (b - a));
-    }
-    return kept;
+std::vector<Vec2> clipHalfPlane(std::vector<Vec2> poly, const Vec2& at, const Vec2& n) {
+    keepNonNegative(poly, [&](const Vec2& q) { return glm::dot(at - q, n); });
+    return poly;
 }
 
 // The part of `poly` inside the convex counterclockwise `clip` (Sutherland-Hodgman).
