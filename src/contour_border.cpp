@@ -115,7 +115,7 @@ bool ContourIntegrator::Lattice::emitBorder(const Vertex& a, const Vertex& b, bo
             const Vec3 y = next == kClipDisc ? b.c : light.center + light.radius * (std::cos(phi) * e1 + std::sin(phi) * e2);
             length += light.radius * best;
             if (!dryRun) {
-                const EdgeDerivative e = discArcG(light, x, y, rec.point);
+                const EdgeDerivative e = discArcG(light, x, y, rec.point, self.mSettings.gradient);
                 g += e.g;
                 scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
                 if (self.mSettings.gradient) dg += e.dg;

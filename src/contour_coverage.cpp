@@ -61,13 +61,13 @@ void ContourIntegrator::Lattice::emitWhole() {
         // edge, then the arc back, counterclockwise.
         const Vec3 from = light.corner, to = light.corner + light.edgeU;
         emit(from, to);
-        const EdgeDerivative e = discArcG(light, to, from, rec.point);
+        const EdgeDerivative e = discArcG(light, to, from, rec.point, self.mSettings.gradient);
         g += e.g;
         scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
         if (self.mSettings.gradient) dg += e.dg;
     } else if (light.shape == LightShape::Disc) {
         const Vec3 start = light.center + light.radius * glm::normalize(light.edgeU);
-        const EdgeDerivative e = discArcG(light, start, start, rec.point);
+        const EdgeDerivative e = discArcG(light, start, start, rec.point, self.mSettings.gradient);
         g += e.g;
         scratch.mPassEdgesValid = false;  // a disc's arc: not kept (recordContour)
         if (self.mSettings.gradient) dg += e.dg;

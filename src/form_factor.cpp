@@ -238,7 +238,54 @@ bool frameHoldsCorners(const RectLight& light) {
            light.edgeV == light.vertices[n - 1] - light.vertices[0];
 }
 
-EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m) {
+namespace {
+
+// G of the arc phi in [fa, fa + span] of the circle c + R (cos phi e1 + sin phi e2), seen from m,
+// in closed form; false where the formula loses digits (then the caller integrates). With
+// c0 = c - m, r(phi) = c0 + R (cos phi e1 + sin phi e2):
+//   dr/dphi x r = -R^2 n + R cos phi (e2 x c0) - R sin phi (e1 x c0)       (n = e1 x e2)
+//   |r|^2       = D + E cos phi + F sin phi = D + rho cos(phi - psi),
+// D = |c0|^2 + R^2, E = 2 R c0.e1, F = 2 R c0.e2, rho = hypot(E, F) < D off the circle. With
+// theta = phi - psi and k = sqrt(D^2 - rho^2):
+//   J0 = int dtheta / (D + rho cos theta) = (2 / k) atan(sqrt((D - rho) / (D + rho)) tan(theta / 2)),
+//   Jc = int cos theta / (...) = (dtheta - D J0) / rho,
+//   Js = int sin theta / (...) = -ln(D + rho cos theta) / rho,
+// and cos phi, sin phi are rotations of cos theta, sin theta by psi.
+bool discArcGClosed(const RectLight& disc, const Vec3& e1, const Vec3& e2, double fa, double span,
+                    const Vec3& m, Vec3& g) {
+    const double R = disc.radius;
+    const Vec3 c0 = disc.center - m;
+    const double D = glm::dot(c0, c0) + R * R;
+    const double E = 2.0 * R * glm::dot(c0, e1), F = 2.0 * R * glm::dot(c0, e2);
+    const double rho = std::hypot(E, F);
+    // Jc's difference cancels about D / rho of its digits: integrate instead near the axis, and
+    // near the circle (where k vanishes).
+    if (!(rho > 1e-4 * D) || !(D - rho > 1e-9 * D)) return false;
+    const double psi = std::atan2(F, E);
+    const double k = std::sqrt((D - rho) * (D + rho));
+    const double t = std::sqrt((D - rho) / (D + rho));
+    // J0's antiderivative, continuous across theta = pi (mod 2 pi).
+    auto j0 = [&](double theta) {
+        const double n = std::floor((theta + kPi) / (2.0 * kPi));
+        const double h = 0.5 * (theta - 2.0 * kPi * n);  // in [-pi/2, pi/2)
+        return (2.0 / k) * (std::atan2(t * std::sin(h), std::cos(h)) + kPi * n);
+    };
+    const double th0 = fa - psi, th1 = th0 + span;
+    const double J0 = j0(th1) - j0(th0);
+    const double Jc = (span - D * J0) / rho;
+    const double q0 = D + rho * std::cos(th0);
+    const double Js = -std::log1p(rho * (std::cos(th1) - std::cos(th0)) / q0) / rho;
+    const double cp = std::cos(psi), sp = std::sin(psi);
+    const double I1 = cp * Jc - sp * Js;  // int cos phi / |r|^2
+    const double I2 = sp * Jc + cp * Js;  // int sin phi / |r|^2
+    g = -R * R * glm::cross(e1, e2) * J0 + R * glm::cross(e2, c0) * I1 - R * glm::cross(e1, c0) * I2;
+    return true;
+}
+
+}  // namespace
+
+EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m,
+                        bool derivative) {
     static const GaussLegendre<16> gl;
     Vec3 e1, e2;
     discAxes(disc, e1, e2);
@@ -246,6 +293,10 @@ EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, con
     double span = angleOn(disc, e1, e2, b) - fa;
     while (span <= 0.0) span += 2.0 * kPi;
     if (glm::length(b - a) <= 1e-12 * disc.radius) span = 2.0 * kPi;
+    if (!derivative) {
+        EdgeDerivative out;
+        if (discArcGClosed(disc, e1, e2, fa, span, m, out.g)) return out;
+    }
     // Pieces of at most pi/8, split further while a piece is longer than half its distance
     // from m (a lower bound: its middle's distance less half its length): the integrand peaks
     // where the circle passes near m, and a fixed rule there was 3% off (a disc of radius 15
@@ -279,6 +330,7 @@ EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, con
             const double w = 0.5 * h * gl.w[i];
             const Vec3 cr = glm::cross(dr, r);
             out.g += (w / q) * cr;
+            if (!derivative) continue;
             for (int k = 0; k < 3; ++k) {
                 Vec3 e(0.0);
                 e[k] = 1.0;
@@ -293,7 +345,7 @@ namespace {
 
 // G and its Jacobian of a disc light's part above the receiver's horizon: the arc above it and,
 // when the horizon cuts the disc, the chord between the two cut points.
-GWithDerivative discG(const RectLight& l, const Receiver& r) {
+GWithDerivative discG(const RectLight& l, const Receiver& r, bool derivative) {
     GWithDerivative out;
     Vec3 e1, e2;
     discAxes(l, e1, e2);
@@ -303,13 +355,13 @@ GWithDerivative discG(const RectLight& l, const Receiver& r) {
     auto at = [&](double phi) { return l.center + l.radius * (std::cos(phi) * e1 + std::sin(phi) * e2); };
     if (h0 <= -amp) return out;
     if (h0 >= amp) {
-        const EdgeDerivative e = discArcG(l, at(0.0), at(0.0), r.point);
+        const EdgeDerivative e = discArcG(l, at(0.0), at(0.0), r.point, derivative);
         out.g = e.g;
         out.dg = e.dg;
     } else {
         const double mid = std::atan2(a2, a1), half = std::acos(-h0 / amp);
         const Vec3 p0 = at(mid - half), p1 = at(mid + half);
-        const EdgeDerivative arc = discArcG(l, p0, p1, r.point);
+        const EdgeDerivative arc = discArcG(l, p0, p1, r.point, derivative);
         const EdgeDerivative chord = edgeGWithDerivative(p1 - r.point, p0 - r.point);
         out.g = arc.g + chord.g;
         out.dg = arc.dg + chord.dg;
@@ -400,14 +452,14 @@ double formFactorDensity(const Receiver& r, const Vec3& lightNormal, const Vec3&
 
 double unoccludedFormFactor(const RectLight& light, const Receiver& r) {
     if (!facesLight(light, r.point)) return 0.0;
-    if (light.shape == LightShape::Disc) return std::max(0.0, glm::dot(discG(light, r).g, r.normal));
+    if (light.shape == LightShape::Disc) return std::max(0.0, glm::dot(discG(light, r, false).g, r.normal));
     return std::max(0.0, polygonFormFactor(clipToHorizon(light.polygon(), r), r));
 }
 
-GWithDerivative unoccludedG(const RectLight& light, const Receiver& r) {
+GWithDerivative unoccludedG(const RectLight& light, const Receiver& r, bool derivative) {
     GWithDerivative out;
     if (!facesLight(light, r.point)) return out;
-    if (light.shape == LightShape::Disc) return discG(light, r);
+    if (light.shape == LightShape::Disc) return discG(light, r, derivative);
     const std::vector<Vec3> poly = clipToHorizon(light.polygon(), r);
     const size_t n = poly.size();
     if (n < 3) return out;

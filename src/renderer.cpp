@@ -735,7 +735,7 @@ private:
     Sample checkedSample(int x) {
         Sample s = mCheckMedia ? estimateAt(x) : exact(x);
         const Receiver r = receiver(x);
-        const GWithDerivative open = unoccludedG(mLight, r);
+        const GWithDerivative open = unoccludedG(mLight, r, mSettings.aci.gradient);
         s.openG = open.g;
         s.openGradient = gradientOf(open.dg, r.normal);
         if (!mCheckMedia)
@@ -807,7 +807,8 @@ private:
                          std::back_inserter(theirs), notSelf);
             if (mine != theirs) continue;
             const Vec3 n = mTs.hits[size_t(x)].normal;
-            const GWithDerivative& openG = open[size_t(x - x0)] = unoccludedG(mLight, receiver(x));
+            const GWithDerivative& openG = open[size_t(x - x0)] =
+                unoccludedG(mLight, receiver(x), mSettings.aci.gradient);
             const double open = glm::dot(openG.g, n);
             const double bend = std::abs(glm::dot(cubicShadow(x) - lineShadow(x), n));
             // Where a tangent plane cuts the light (horizonCut), the rows' unoccluded G must
@@ -1030,7 +1031,7 @@ private:
     void storeInterpolated(int i, const Vec3& shadow, const Vec3& shadowGradient, double samplesBound,
                            const std::vector<uint32_t>& blockers) {
         const Receiver r = receiver(i);
-        const GWithDerivative open = unoccludedG(mLight, r);
+        const GWithDerivative open = unoccludedG(mLight, r, mSettings.aci.gradient);
         const Vec3 g = open.g - shadow;
         const Vec3 grad = gradientOf(open.dg, r.normal) - shadowGradient;
         const double f = std::max(0.0, glm::dot(g, r.normal));
@@ -1073,7 +1074,7 @@ private:
     double facingF(int x) const {
         const Vec3& p = mTs.hits[size_t(x)].point;
         const Vec3 towards = glm::normalize(mLight.point(0.5, 0.5) - p);
-        return glm::dot(unoccludedG(mLight, Receiver{p, towards}).g, towards);
+        return glm::dot(unoccludedG(mLight, Receiver{p, towards}, false).g, towards);
     }
 
     // Checked interpolation over [l, r] (samples at xs, the quadratics' or the quartic's): where
@@ -1095,7 +1096,7 @@ private:
                                    : i < xs[2] ? lagrange(i, xs[0], open[0], xs[1], open[1], xs[2], open[2])
                                                : lagrange(i, xs[2], open[2], xs[3], open[3], xs[4], open[4]);
             const Receiver rc = receiver(i);
-            const Vec3 actual = unoccludedG(mLight, rc).g;
+            const Vec3 actual = unoccludedG(mLight, rc, false).g;
             if (!(std::abs(glm::dot(predicted - actual, rc.normal)) <= kCheckedInterpolationTolerance * facingF(i)))
                 return false;
         }

@@ -126,18 +126,22 @@ double unoccludedFormFactor(const RectLight& light, const Receiver& r);
 
 /// Unoccluded G (F = G . n) and its Jacobian with respect to M (n fixed), for the clipped
 /// light. The clipped vertices are held fixed: their sliding only changes F to second order
-/// because the cosine weight vanishes on the horizon.
+/// because the cosine weight vanishes on the horizon. Without `derivative` a disc's Jacobian may
+/// be left zero (its arc is then integrated in closed form; see discArcG).
 struct GWithDerivative {
     Vec3 g{0.0};
     Mat3 dg{0.0};
 };
-GWithDerivative unoccludedG(const RectLight& light, const Receiver& r);
+GWithDerivative unoccludedG(const RectLight& light, const Receiver& r, bool derivative = true);
 
 /// G (as edgeG: beta n_hat, without 1 / (2 pi)) of the arc of a disc light's circle from a to b,
 /// both on it, counterclockwise about the light's normal (a full turn when a == b), seen from m,
-/// with its Jacobian in m. Integrated on the exact circle (Gauss-Legendre, 16 nodes per 1/16 of
-/// a turn: converged to rounding for m off the circle), not on a polygon.
-EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m);
+/// with its Jacobian in m. Integrated on the exact circle, not on a polygon: without the
+/// Jacobian (`derivative` false; dg is then zero) in closed form, else, and where the closed
+/// form would lose digits (m near the disc's axis or its circle), by Gauss-Legendre, 16 nodes
+/// per piece of at most 1/16 of a turn, split near m (converged to rounding off the circle).
+EdgeDerivative discArcG(const RectLight& disc, const Vec3& a, const Vec3& b, const Vec3& m,
+                        bool derivative = true);
 
 /// Form factor of a strip of width `width` around the segment p0-p1 on the light, by the
 /// elementary (differential area) form factor at the segment's midpoint: the uncertainty of a
