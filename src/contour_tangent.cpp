@@ -142,7 +142,10 @@ double ContourIntegrator::Lattice::fieldRoot(LatticePoint q, const Vec3& from, c
         if (!std::isfinite(f0)) return best;
         narrow(x0, f0);
     }
-    const double tolerance = kFieldRootTolerance * voxel;
+    // Zero within kFieldRootTolerance voxel, and within the field's change over
+    // kFieldRootUnitShare of a lattice unit: moving the ray's end by one unit on the light moves
+    // its closest approach (at fraction tc) by tc units, and the field by at most that much.
+    const double tolerance = std::min(kFieldRootTolerance * voxel, kFieldRootUnitShare * tc * unit);
     for (int step = 0; step < kFieldRootSteps && bestF >= tolerance && f1 != f0; ++step) {
         double x2 = x1 - f1 * (x1 - x0) / (f1 - f0);
         if (!(x2 > a && x2 < b)) x2 = 0.5 * (a + b);

@@ -388,6 +388,26 @@ double LightFootprints::narrowestWidth(const Occluder& occ) const {
     return narrowest;
 }
 
+double LightFootprints::largestMagnifiedVoxel(const Occluder& occ) const {
+    if (!mBounded || !mLight) return 0.0;
+    double farthest = 0.0;
+    for (const Vec3& c : {mLight->corner, mLight->corner + mLight->edgeU,
+                          mLight->corner + mLight->edgeV, mLight->corner + mLight->edgeU + mLight->edgeV})
+        farthest = std::max(farthest, glm::length(c - mOrigin));
+    double largest = 0.0;
+    for (const Footprint& f : mFootprints) {
+        if (f.u1 < 0.0 || f.u0 > 1.0 || f.v1 < 0.0 || f.v0 > 1.0) continue;
+        const double voxel = occ.voxelSize(size_t(f.obstacle));
+        if (!(voxel > 0.0)) continue;
+        const Box3& b = occ.solidBounds(size_t(f.obstacle));
+        const Vec3 nearest = glm::clamp(mOrigin, b.lo, b.hi);
+        const double d = glm::length(nearest - mOrigin);
+        if (!(d > 0.0)) return std::numeric_limits<double>::infinity();
+        largest = std::max(largest, voxel * farthest / d);
+    }
+    return largest;
+}
+
 void LightFootprints::normals(const double u[8], const double v[8], int n, double nu[8],
                               double nv[8]) {
     for (int i = 0; i < n; ++i) {

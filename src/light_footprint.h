@@ -56,6 +56,12 @@ public:
     /// reaching 2 units of 256 into a disc light along its rim), which a coarser lattice
     /// misses. Like narrowestWidth(), a guide for choosing a lattice, not a bound.
     double thinSliver(const Receiver& r, double width) const;
+    /// The largest level-set voxel as the light sees it: over the bounded footprints that meet
+    /// the light's rectangle and belong to level sets, the voxel times the origin's largest
+    /// distance to the light's corners over its distance to the obstacle's solid box (an upper
+    /// bound on how long a voxel looks on the light: a length l at the fraction t of a segment
+    /// spans l / t at its end). 0 when there is none; infinite when the origin is in a box.
+    double largestMagnifiedVoxel(const Occluder& occ) const;
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
     /// (d; its length and direction).

@@ -1578,3 +1578,55 @@ TEST_CASE("adaptive steps keep the lattice where a wide footprint cuts a sliver 
     CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
     CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
 }
+
+TEST_CASE("the field's root is found to a part of a lattice unit where a voxel spans many "
+          "(random scene 946)",
+          "[aci][coverage]") {
+    // tests/scenes/random_seed946.json is bench_random --lights mixed's scene for seed 946: a
+    // level-set box whose lowest corner is 0.066 above the ground, under a disc light 0.81
+    // across at height 2.65. From ground points beside the box a voxel of it spans some 110
+    // lattice units on the light, and fieldRoot's zero (0.02 voxel of the field) was most of a
+    // unit, always on the side its secant came from: at (0.1187, -0.3067) F came out
+    // 0.0078901 against 0.0079330 from 2^20 stratified rays (0.24% of the unoccluded form
+    // factor too dark, halving with each dichotomy step added). The zero is now also the
+    // field's change over a twentieth of a unit (kFieldRootUnitShare): 0.0079436.
+    SceneUnderTest t("random_seed946.json");
+    const RectLight& light = t.scene.lights.at(0);
+    const Receiver r{Vec3(0.118669969, -0.306682567, 0.0), kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
+    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
+    const double ref = 0.00793303269688;  // penumbra probe --method reference --samples 1048576
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(aci.formFactor, aci.errorBound, ref, full);
+    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
+    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+}
+
+TEST_CASE("adaptive steps keep the lattice under a disc where a level set near the receiver "
+          "is magnified (random scene 946)",
+          "[aci][coverage]") {
+    // The same scene: from ground point (0.0999, -0.0913) the box's footprint on the disc is 2.2
+    // across (the disc is 0.81), but its shadow there is a sliver 1-4% of the disc's width
+    // along the rim. Neither the footprint's width nor its sliver rule sees that, and on the
+    // coarser lattice (renders' adaptive steps) F came out 0.0182717 against 0.0181745 from 2^20
+    // stratified rays (0.52% of the unoccluded form factor too bright). A voxel of the box spans
+    // about 110 lattice units there (LightFootprints::largestMagnifiedVoxel), so the evaluation
+    // keeps the finer lattice: 0.0181811.
+    SceneUnderTest t("random_seed946.json");
+    const RectLight& light = t.scene.lights.at(0);
+    const Receiver r{Vec3(0.099862085, -0.091297955, 0.0), kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
+    s.adaptiveSteps = true;
+    s.extendCoverage = 0.0;  // as renders (RenderSettings::pixelAci)
+    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
+    const double ref = 0.0181744529538;  // penumbra probe --method reference --samples 1048576
+    const double full = unoccludedFormFactor(light, r);
+    CAPTURE(aci.formFactor, aci.errorBound, ref, full, aci.counts.coarserEvaluations);
+    CHECK(aci.counts.coarserEvaluations == 0);
+    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
+    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+}
