@@ -473,10 +473,8 @@ Estimate ContourIntegrator::evaluate(const Receiver& r, const RectLight& light,
         // and the coarser lattice left the point 0.5% of F0 too bright; 0.04% on the finer).
         if (sc.mFootprints.narrowestWidth(query.occluder()) >= wide) {
             const double sliver = sc.mFootprints.thinSliver(r, wide);
-            const bool latticeBorder = light.shape == LightShape::Rect ||
-                                       (light.vertices.size() == 4 && frameHoldsCorners(light));
             if (!(sliver > kSliverShare * unoccludedFormFactor(light, r)) &&
-                (latticeBorder ||
+                (!LightFootprints::borderOffLattice(light) ||
                  !(sc.mFootprints.largestMagnifiedVoxel(query.occluder()) > kMagnifiedVoxel * unit)))
                 coarser = 1;
         }

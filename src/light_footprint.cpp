@@ -126,11 +126,7 @@ double LightFootprints::thinSliver(const Receiver& r, double width) const {
     // A rectangle's border is lattice lines, whose points (traced or crossed by the contour
     // there) see a sliver along it; a circle or a polygon's cutting edge runs between lattice
     // points, and a sliver beside it can fall between the lattice and the border.
-    // A parallelogram light is its own frame.
-    const bool parallelogram = mLight->shape == LightShape::Polygon && mLight->vertices.size() == 4 &&
-                               frameHoldsCorners(*mLight);
-    if (!mBounded || mFootprints.empty() || mLight->shape == LightShape::Rect || parallelogram)
-        return heaviest;
+    if (!mBounded || mFootprints.empty() || !borderOffLattice(*mLight)) return heaviest;
     const std::vector<Vec2> light = emittingPolygon();
     if (light.size() < 3) return heaviest;
     const double margin = 1e-9 * std::max(glm::length(mLight->edgeU), glm::length(mLight->edgeV));
@@ -386,6 +382,13 @@ double LightFootprints::narrowestWidth(const Occluder& occ) const {
         narrowest = std::min(narrowest, width);
     }
     return narrowest;
+}
+
+bool LightFootprints::borderOffLattice(const RectLight& light) {
+    // A parallelogram light is its own frame.
+    const bool parallelogram = light.shape == LightShape::Polygon && light.vertices.size() == 4 &&
+                               frameHoldsCorners(light);
+    return light.shape != LightShape::Rect && !parallelogram;
 }
 
 double LightFootprints::largestMagnifiedVoxel(const Occluder& occ) const {

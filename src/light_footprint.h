@@ -62,6 +62,9 @@ public:
     /// bound on how long a voxel looks on the light: a length l at the fraction t of a segment
     /// spans l / t at its end). 0 when there is none; infinite when the origin is in a box.
     double largestMagnifiedVoxel(const Occluder& occ) const;
+    /// Whether the light's border runs between lattice points (a disc's circle, a polygon's
+    /// cutting edge) rather than along lattice lines (a rectangle's or a parallelogram's frame).
+    static bool borderOffLattice(const RectLight& light);
     /// A light point as distance() and hiddenAt() read it (found once for both): its
     /// coordinates in an orthonormal frame of the light's plane, and its offset from the origin
     /// (d; its length and direction).
