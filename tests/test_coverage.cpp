@@ -1547,6 +1547,30 @@ TEST_CASE("tangent mode: squares below one whose threshold no checked piece set 
     CHECK(std::abs(m.aci.formFactor - m.ref) <= m.aci.errorBound);
 }
 
+// The default evaluation of a scene file's light at ground point p (no gradient), as a probe
+// makes it or, with `asRender`, as a render's pixel does (adaptive steps and one coverage
+// allowance: RenderSettings::pixelAci).
+Estimate groundPoint(SceneUnderTest& t, const Vec3& p, bool asRender) {
+    const Receiver r{p, kUp};
+    AciSettings s;
+    s.gradient = false;
+    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
+    if (asRender) {
+        s.adaptiveSteps = true;
+        s.extendCoverage = 0.0;
+    }
+    return ContourIntegrator(s).evaluate(r, t.scene.lights.at(0), t.q);
+}
+
+// An evaluation at ground point p against its reference: within its own bound, and within 0.1%
+// of the unoccluded form factor.
+void checkGroundPoint(const SceneUnderTest& t, const Vec3& p, const Estimate& aci, double ref) {
+    const double full = unoccludedFormFactor(t.scene.lights.at(0), {p, kUp});
+    CAPTURE(p.x, p.y, aci.formFactor, aci.errorBound, ref, full);
+    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
+    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+}
+
 TEST_CASE("adaptive steps keep the lattice where a wide footprint cuts a sliver from a disc's rim "
           "(random scene 941)",
           "[aci][coverage]") {
@@ -1561,22 +1585,15 @@ TEST_CASE("adaptive steps keep the lattice where a wide footprint cuts a sliver 
     // (LightFootprints::thinSliver): 0.171356. Reference: the same estimator at n = 6 on the
     // finer lattice (a million rays: 0.171291).
     SceneUnderTest t("random_seed941.json");
-    const RectLight& light = t.scene.lights.at(0);
-    const Receiver r{Vec3(0.382620155, -1.000983518, 0.0), kUp};
-    AciSettings s;
-    s.gradient = false;
-    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
-    s.adaptiveSteps = true;
-    AciSettings fine = s;
+    const Vec3 p(0.382620155, -1.000983518, 0.0);
+    const Estimate aci = groundPoint(t, p, true);
+    AciSettings fine;
+    fine.gradient = false;
+    fine.rayOffset = receiverRayOffset(t.occ, p, 1e-9);
     fine.steps = 6;
-    fine.adaptiveSteps = false;
-    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
-    const double ref = ContourIntegrator(fine).evaluate(r, light, t.q).formFactor;
-    const double full = unoccludedFormFactor(light, r);
-    CAPTURE(aci.formFactor, aci.errorBound, ref, full, aci.counts.coarserEvaluations);
+    const double ref = ContourIntegrator(fine).evaluate({p, kUp}, t.scene.lights.at(0), t.q).formFactor;
     CHECK(aci.counts.coarserEvaluations == 0);
-    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
-    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+    checkGroundPoint(t, p, aci, ref);
 }
 
 TEST_CASE("the field's root is found to a part of a lattice unit where a voxel spans many "
@@ -1591,17 +1608,9 @@ TEST_CASE("the field's root is found to a part of a lattice unit where a voxel s
     // factor too dark, halving with each dichotomy step added). The zero is now also the
     // field's change over a twentieth of a unit (kFieldRootUnitShare): 0.0079436.
     SceneUnderTest t("random_seed946.json");
-    const RectLight& light = t.scene.lights.at(0);
-    const Receiver r{Vec3(0.118669969, -0.306682567, 0.0), kUp};
-    AciSettings s;
-    s.gradient = false;
-    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
-    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
+    const Vec3 p(0.118669969, -0.306682567, 0.0);
     const double ref = 0.00793303269688;  // penumbra probe --method reference --samples 1048576
-    const double full = unoccludedFormFactor(light, r);
-    CAPTURE(aci.formFactor, aci.errorBound, ref, full);
-    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
-    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+    checkGroundPoint(t, p, groundPoint(t, p, false), ref);
 }
 
 TEST_CASE("adaptive steps keep the lattice under a disc where a level set near the receiver "
@@ -1615,18 +1624,9 @@ TEST_CASE("adaptive steps keep the lattice under a disc where a level set near t
     // about 110 lattice units there (LightFootprints::largestMagnifiedVoxel), so the evaluation
     // keeps the finer lattice: 0.0181811.
     SceneUnderTest t("random_seed946.json");
-    const RectLight& light = t.scene.lights.at(0);
-    const Receiver r{Vec3(0.099862085, -0.091297955, 0.0), kUp};
-    AciSettings s;
-    s.gradient = false;
-    s.rayOffset = receiverRayOffset(t.occ, r.point, 1e-9);
-    s.adaptiveSteps = true;
-    s.extendCoverage = 0.0;  // as renders (RenderSettings::pixelAci)
-    const Estimate aci = ContourIntegrator(s).evaluate(r, light, t.q);
+    const Vec3 p(0.099862085, -0.091297955, 0.0);
+    const Estimate aci = groundPoint(t, p, true);
     const double ref = 0.0181744529538;  // penumbra probe --method reference --samples 1048576
-    const double full = unoccludedFormFactor(light, r);
-    CAPTURE(aci.formFactor, aci.errorBound, ref, full, aci.counts.coarserEvaluations);
     CHECK(aci.counts.coarserEvaluations == 0);
-    CHECK(std::abs(aci.formFactor - ref) <= aci.errorBound);
-    CHECK(std::abs(aci.formFactor - ref) <= 0.001 * full);
+    checkGroundPoint(t, p, aci, ref);
 }
