@@ -182,6 +182,7 @@ ContourIntegrator::Lattice::Lattice(ContourIntegrator& s, const Receiver& r, con
     }
     scratch.mTraced.clear();
     scratch.mTracedDiscs.clear();
+    scratch.mProbed.clear();
     scratch.mAllTraced.clear();
     scratch.mPassEdges.clear();
     scratch.mPassEdgesValid = true;
@@ -265,6 +266,7 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         }
     }
     Corner ray;
+    double asked = 0.0;  // the radius the ray's certificate was computed up to
     if (kept && kept->answers(origin)) {
         ray = *kept;
         ray.geometry.stale = 1.0f;  // its distances are the earlier point's
@@ -279,8 +281,8 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
         // measured only for the rays the tangent construction asks about (settle()):
         // coverage rays far from any contour never need it.
         const bool lazy = self.mSettings.distanceGuided && self.mSettings.coverage && !kept;
-        ray = traceRay(query, origin, target, self.mSettings,
-                       firstLevel || certifyNext ? (wantWhole ? want : wantSquare) : 0.0,
+        asked = firstLevel || certifyNext ? (wantWhole ? want : wantSquare) : 0.0;
+        ray = traceRay(query, origin, target, self.mSettings, asked,
                        self.mSettings.distanceGuided && !lazy);
         scratch.mPending[idx] = lazy ? kPendingClearance : 0;
         if (kept) *kept = ray;
@@ -289,7 +291,8 @@ float& ContourIntegrator::Lattice::sample(LatticePoint q, bool firstLevel) {
     if (self.mSettings.tangentContour) scratch.mGeometry[idx] = ray.geometry;
     s = ray.sample;
     noteBlocker(ray.blocker);
-    if (self.mSettings.coverage) recordCertificate(idx, q, ray.cert);
+    // Radii under a 64th of what was asked may be reported as 0 (Occluder::Query::certify).
+    if (self.mSettings.coverage) recordCertificate(idx, q, ray.cert, asked > 0.0 ? asked / 64.0 : -1.0);
     return s;
 }
 
@@ -300,9 +303,12 @@ void ContourIntegrator::Lattice::noteBlocker(int b) {
     if (scratch.mBlockers.empty() || scratch.mBlockers.back() != i) scratch.mBlockers.push_back(i);
 }
 
-// Keeps sample q's certificate, and its disc for coverage when it proves one.
-void ContourIntegrator::Lattice::recordCertificate(size_t idx, LatticePoint q, const Certificate& c) {
+// Keeps sample q's certificate, and its disc for coverage when it proves one. `floor` >= 0: the
+// certificate was asked for, and a radius under `floor` may have been reported as 0.
+void ContourIntegrator::Lattice::recordCertificate(size_t idx, LatticePoint q, const Certificate& c,
+                                                   double floor) {
     scratch.mCert[idx] = c;
+    if (c.radius > 0.0 || floor >= 0.0) scratch.mProbed.push_back({pointOf(q), std::max(c.radius, floor)});
     if (!(c.radius > 0.0)) return;
     scratch.mTraced.push_back(static_cast<uint32_t>(idx));
     scratch.mTracedDiscs.push_back({pointOf(q), c.radius});

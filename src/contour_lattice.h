@@ -76,6 +76,11 @@ struct Uncovered {  // a cell of the light no disc proves yet
     bool exhausted = false;  // every lattice point coverage may ask in it is traced
     bool dead = false;       // covered, or replaced by its quarters (nextCoverageSample)
     size_t seen = 0;         // the traced discs its gap and key have taken in
+    /// The largest disc a ray at its centre could prove: the least over the certified samples
+    /// so far of their distance plus their radius (a clear segment's radius changes no faster
+    /// than its end on the light moves). Coverage's order, not its stopping rule.
+    double reach = std::numeric_limits<double>::infinity();
+    size_t probed = 0;  // the certified samples its reach has taken in
 };
 
 /// Whether a disc light is one segment of its part above a receiver's horizon (its frame the
@@ -230,7 +235,7 @@ struct ContourIntegrator::Scratch {
     std::vector<Certificate> mCert;  // coverage: each sample's certificate
     std::vector<Uncovered> mUncovered;  // coverage: the current pass's uncovered cells
     LightFootprints mFootprints;  // coverage: the obstacles' footprints on the light
-    // Coverage's queue: (key, index into mUncovered), a max-heap whose keys may be stale, but
+    // Coverage's queue: (priority, index into mUncovered), a max-heap whose priorities may be stale, but
     // never low (nextCoverageSample).
     std::vector<std::pair<double, uint32_t>> mCoverageHeap;
     std::vector<Disc> mDiscs;        // coverage scratch: discs near one leaf
@@ -240,6 +245,9 @@ struct ContourIntegrator::Scratch {
     std::vector<uint32_t> mMarked;   // coverage: samples that contradicted the last pass
     std::vector<uint32_t> mTraced;   // coverage: lattice indices with a certificate this time
     std::vector<Disc> mTracedDiscs;  // coverage: their discs, in the same order
+    // coverage: every sample certified this time (radius 0 too, as the most a reported 0 may
+    // hide), for Uncovered::reach
+    std::vector<Disc> mProbed;
     std::vector<uint32_t> mAllTraced;  // coverage: every lattice index traced this time
     std::vector<uint32_t> mBlockers;   // the obstacles that blocked rays this time (repeats)
     // recordContour: the current pass's emitted edges on the light's plane, and whether they
@@ -446,7 +454,7 @@ struct ContourIntegrator::Lattice {
     bool footprintProves(double a0, double b0, double size, int& footprint) const;
     static double distanceToSegment(const Vec3& p, const Segment& g);
     static double distance2ToSegment(const Vec3& p, const Segment& g);
-    void recordCertificate(size_t idx, LatticePoint q, const Certificate& c);
+    void recordCertificate(size_t idx, LatticePoint q, const Certificate& c, double floor = -1.0);
     void noteBlocker(int b);
     // How far from a contour segment coverage looks at it: its gaps (a cell within coverageGap x
     // epsilon of a piece's strip is near proven ground) and uncoveredCells' final test (within
@@ -459,6 +467,7 @@ struct ContourIntegrator::Lattice {
     bool provenWithoutDiscs(double a0, double b0, double size, int& footprint) const;
     static void gapTo(Uncovered& u, const Disc& d, double dist);
     double coverageKey(const Uncovered& u) const;
+    double coveragePriority(const Uncovered& u) const;
     double coverageWeight(const Vec3& centre) const;
     double uncoveredFormFactor() const;
     double finalUncoveredFormFactor();

@@ -1630,3 +1630,34 @@ TEST_CASE("adaptive steps keep the lattice under a disc where a level set near t
     CHECK(aci.counts.coarserEvaluations == 0);
     checkGroundPoint(t, p, aci, ref);
 }
+
+TEST_CASE("coverage explores the light before it crowds rays where certificates stay small "
+          "(random scenes 11213 and 9120)",
+          "[aci][coverage]") {
+    // Far ground points seeing a light at a grazing angle past an obstacle's flat face: rays to
+    // one part of the light skim the face, their certificates prove under a 64th of what they
+    // ask (reported as 0), and the cells there stayed the farthest from proven ground. Coverage
+    // spent its 96 rays one beside the other there and took the rest of the light as lit:
+    // - tests/scenes/random_seed11213.json (bench_bounds --lights mixed --fog seed 11213, the
+    //   fogs left out): a level-set cylinder 0.36 across just under a triangle light; at
+    //   (-3.1967, -6.0565) its shadow, 3.2% of the unoccluded form factor, went unseen
+    //   (8.1617e-5 against 7.8989e-5);
+    // - tests/scenes/random_seed9120.json (bench_bounds --lights mixed seed 9120): a level-set
+    //   box whose corner comes within 0.01 of a disc light's plane; at (-1.8275, -3.8208) 3.7%
+    //   of the unoccluded form factor unseen.
+    // Both were within their (large) bounds. Two changes find them: a cell with no disc near
+    // it measures its distance from proven ground to the nearest disc, not infinity, which tied
+    // every such cell and sent coverage depth first into one (seed 9120); and coverage orders
+    // cells by what a ray there could prove (Uncovered::reach) as well as by that distance
+    // (seed 11213). References: penumbra probe --method reference --samples 1048576.
+    {
+        SceneUnderTest t("random_seed11213.json");
+        const Vec3 p(-3.196737, -6.0564896, 0.0);
+        checkGroundPoint(t, p, groundPoint(t, p, false), 7.89889288943e-05);
+    }
+    {
+        SceneUnderTest t("random_seed9120.json");
+        const Vec3 p(-1.82746604, -3.8207528, 0.0);
+        checkGroundPoint(t, p, groundPoint(t, p, false), 0.000306360622866);
+    }
+}
