@@ -265,8 +265,10 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     }
     u.gap = std::min(u.gap, nearest() - epsWorld);
     u.key = coverageKey(u);
-    for (const Disc& d : scratch.mProbed) u.reach = std::min(u.reach, glm::length(c - d.c) + d.r);
-    u.probed = scratch.mProbed.size();
+    if (minSize > 1.0) {  // coverage's order (the final count needs none)
+        for (const Disc& d : scratch.mProbed) u.reach = std::min(u.reach, glm::length(c - d.c) + d.r);
+        u.probed = scratch.mProbed.size();
+    }
     u.weight = coverageWeight(c);
     scratch.mUncovered.push_back(u);
 }
