@@ -265,10 +265,6 @@ void ContourIntegrator::Lattice::uncoveredCells(double a0, double b0, double siz
     }
     u.gap = std::min(u.gap, nearest() - epsWorld);
     u.key = coverageKey(u);
-    if (minSize > 1.0) {  // coverage's order (the final count needs none)
-        for (const Disc& d : scratch.mProbed) u.reach = std::min(u.reach, glm::length(c - d.c) + d.r);
-        u.probed = scratch.mProbed.size();
-    }
     u.weight = coverageWeight(c);
     scratch.mUncovered.push_back(u);
 }
@@ -483,8 +479,7 @@ bool ContourIntegrator::Lattice::nextCoverageSample(LatticePoint& out, bool give
     // Cells from `from` on were just made against every disc traced so far.
     auto enqueue = [&](size_t from) {
         for (size_t i = from; i < cells.size(); ++i) {
-            cells[i].seen = discs;
-            cells[i].probed = probed;
+            cells[i].seen = discs;  // its reach is found when it first comes to the top
             heap.emplace_back(coveragePriority(cells[i]), static_cast<uint32_t>(i));
             std::push_heap(heap.begin(), heap.end());
         }
